@@ -1,0 +1,263 @@
+"""Configuration dataclasses for every part of the simulator.
+
+Every physical quantity carries its unit in the field name (``_m``, ``_s``, ``_deg`` ...) or
+in its docstring. Values stated by the paper are marked ``paper``; everything else is a choice
+of ours, listed with its reasoning in ``docs/simulator.md``. Configs are frozen: build a new
+one with :func:`dataclasses.replace` rather than mutating a shared instance.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields, is_dataclass
+from typing import Literal
+
+GRAVITY_M_S2 = 9.81
+
+
+def _check_range(owner: str, name: str, value: float, low: float, high: float) -> None:
+    if not (low <= value <= high):
+        raise ValueError(f"{owner}.{name}={value!r} is outside the allowed range [{low}, {high}]")
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """The 2.59 kg survey quadrotor (paper, Section "Vehicle and dynamics").
+
+    Rotor layout: X configuration, rotor ``i`` at azimuth ``45 + 90 i`` degrees from the body
+    x axis (0 front-left, 1 rear-left, 2 rear-right, 3 front-right), spinning CW, CCW, CW, CCW
+    seen from above. See :mod:`quadwind_trl.envs.vehicle` for the mixing matrix.
+    """
+
+    mass_kg: float = 2.59  # paper
+    inertia_kg_m2: tuple[float, float, float] = (0.078, 0.082, 0.14)  # paper, diagonal
+    arm_length_m: float = 0.25  # paper, hub to rotor axis
+    thrust_coeff: float = 1.5e-5  # paper, k_T in N / (rad/s)^2
+    yaw_moment_ratio_m: float = 0.055  # paper, k_M / k_T
+    motor_time_constant_s: float = 0.05  # paper
+    rotor_speed_max_rad_s: float = 1200.0  # paper; the minimum is 0
+    collective_thrust_min_hover: float = 0.3  # paper, fraction of hover thrust
+    collective_thrust_max_hover: float = 2.5  # paper
+    drag_area_xy_m2: float = 0.038  # paper, C_d A along body x and y
+    drag_area_z_m2: float = 0.10  # paper, C_d A along body z
+    air_density_kg_m3: float = 1.225  # paper
+
+    @property
+    def hover_thrust_n(self) -> float:
+        return self.mass_kg * GRAVITY_M_S2
+
+    @property
+    def hover_rotor_speed_rad_s(self) -> float:
+        return math.sqrt(self.hover_thrust_n / (4.0 * self.thrust_coeff))
+
+    def validate(self) -> None:
+        _check_range("VehicleConfig", "mass_kg", self.mass_kg, 0.05, 50.0)
+        _check_range("VehicleConfig", "motor_time_constant_s", self.motor_time_constant_s, 1e-4, 1.0)
+        max_total = 4 * self.thrust_coeff * self.rotor_speed_max_rad_s**2
+        if self.collective_thrust_max_hover * self.hover_thrust_n > max_total + 1e-9:
+            raise ValueError(
+                "VehicleConfig.collective_thrust_max_hover exceeds what the rotors can produce "
+                f"({max_total / self.hover_thrust_n:.2f} x hover)"
+            )
+
+
+@dataclass(frozen=True)
+class ControllerConfig:
+    """Flatness-based PD cascade (paper): the wind-blind baseline and the residual's base law.
+
+    ``feedback`` picks what the controller reads: ``"truth"`` is the simulator state,
+    ``"sensors"`` the sample-and-held measurements of :class:`SensorConfig` (a real autopilot
+    reads filtered measurements; see ``docs/simulator.md`` for the calibration that chose the
+    default).
+    """
+
+    kp_pos: tuple[float, float, float] = (5.0, 5.0, 7.0)  # paper, 1/s^2
+    kd_pos: tuple[float, float, float] = (3.5, 3.5, 4.5)  # paper, 1/s
+    k_att: tuple[float, float, float] = (10.0, 10.0, 5.0)  # paper, K_R in N m / rad (not scaled by J)
+    k_rate: tuple[float, float, float] = (3.5, 3.5, 2.0)  # paper, K_omega in N m s / rad
+    max_tilt_deg: float = 35.0  # paper, commanded-tilt limit
+    pos_error_limit_m: tuple[float, float, float] = (12.0, 12.0, 15.0)  # paper
+    feedback: Literal["truth", "sensors"] = "truth"
+
+    def validate(self) -> None:
+        _check_range("ControllerConfig", "max_tilt_deg", self.max_tilt_deg, 1.0, 89.0)
+        if self.feedback not in ("truth", "sensors"):
+            raise ValueError(f"ControllerConfig.feedback={self.feedback!r}; allowed: 'truth', 'sensors'")
+
+
+@dataclass(frozen=True)
+class ResidualConfig:
+    """The RL residual wrench added to the PD output (paper, Section "Action")."""
+
+    action_scale: tuple[float, float, float, float] = (10.0, 5.0, 5.0, 5.0)  # paper, N and N m
+    smoothing: float = 0.7  # paper; weight of the previous applied correction
+    slew_limit_per_step: tuple[float, float, float, float] = (2.0, 1.0, 1.0, 1.0)  # N, N m per 10 ms
+
+    def validate(self) -> None:
+        _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
+        if min(self.slew_limit_per_step) <= 0:
+            raise ValueError("ResidualConfig.slew_limit_per_step must be positive")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Eq. (2) of the paper: r = -a e_xy - b |e_z| - g |u_ff| - d |du_ff| + r_alive."""
+
+    w_xy: float = 1.0  # paper (alpha)
+    w_z: float = 1.0  # paper (beta): 1.0 horizontal, 0.5 vertical regime
+    w_ff: float = 0.01  # paper (gamma), on the wrench in N and N m
+    w_dff: float = 0.02  # paper (delta)
+    alive_bonus: float = 0.05  # paper
+    crash_penalty: float = -100.0  # paper
+    crash_tilt_deg: float = 80.0  # "excessive tilt": beyond this attitude the flight is lost
+    takeoff_grace_s: float = 5.0  # ground contact ends an episode only this long after arming
+
+
+@dataclass(frozen=True)
+class TimingConfig:
+    physics_dt_s: float = 0.002  # paper: rigid body at 500 Hz
+    control_substeps: int = 5  # paper: PD at 100 Hz
+    log_every_control_steps: int = 10  # paper: flight record at 10 Hz
+
+    @property
+    def control_dt_s(self) -> float:
+        return self.physics_dt_s * self.control_substeps
+
+    @property
+    def log_dt_s(self) -> float:
+        return self.control_dt_s * self.log_every_control_steps
+
+
+@dataclass(frozen=True)
+class WindProfileConfig:
+    """Turbulence-free mean wind: power law in altitude plus linear veer (paper Eq. 1)."""
+
+    reference_height_m: float = 10.0  # paper, z_ref
+    max_horizontal_wind_m_s: float = 20.0  # paper, the cap on the horizontal wind magnitude
+
+
+@dataclass(frozen=True)
+class TurbulenceConfig:
+    """Spectral-mode von Karman turbulence (TurboGenPY-style), evaluated at the vehicle.
+
+    ``layout="full"`` (default): ``num_modes`` log-spaced dimensionless wavenumbers
+    ``kappa = k L`` over ``kappa_range``, amplitudes normalised to the requested variance.
+    ``layout="paper_cube"``: the paper's stated cube, linear k from ``2 pi / cube_size_m`` to
+    the grid's Nyquist ``pi / (cube_size_m / cube_points)``, no renormalisation, so it
+    realises only the variance its k range holds.
+    """
+
+    enabled: bool = True
+    num_modes: int = 300  # paper
+    layout: Literal["full", "paper_cube"] = "full"
+    kappa_range: tuple[float, float] = (2 * math.pi / 60.0, 800.0)
+    cube_size_m: float = 1200.0  # paper
+    cube_points: int = 64  # paper
+    skeleton_seed: int = 20240611
+    intensity_altitude_exponent: float = 0.05  # sigma_u = I U(z) (z/z_ref)^(-this): mild decay
+    # sigma_v / sigma_u and sigma_w / sigma_u for the neutral, stable and convective regimes
+    # (after Panofsky & Dutton 1984 and Stull 1988; see docs/simulator.md)
+    stability_ratios: tuple[tuple[float, float], ...] = ((0.80, 0.52), (0.75, 0.45), (0.95, 0.80))
+
+    def validate(self) -> None:
+        if self.layout not in ("full", "paper_cube"):
+            raise ValueError(f"TurbulenceConfig.layout={self.layout!r}; allowed: 'full', 'paper_cube'")
+        _check_range("TurbulenceConfig", "num_modes", self.num_modes, 1, 100_000)
+        if not 0 < self.kappa_range[0] < self.kappa_range[1]:
+            raise ValueError(f"TurbulenceConfig.kappa_range={self.kappa_range!r} must be increasing and positive")
+
+
+@dataclass(frozen=True)
+class SensorChannelConfig:
+    """One instrument: sample rate, white noise and a random-walk bias (per axis)."""
+
+    rate_hz: float
+    noise_std: float
+    bias_walk_std_per_sqrt_s: float
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """The small-UAS sensor suite (paper, Section "Sensors"); noise in SI units (m, m/s, rad...).
+
+    Bias walks are our choice (the paper says only "slowly drifting"); see docs/simulator.md.
+    """
+
+    enabled: bool = True
+    gps_pos: SensorChannelConfig = SensorChannelConfig(10.0, 0.7, 0.05)  # m
+    gps_vel: SensorChannelConfig = SensorChannelConfig(10.0, 0.15, 0.005)  # m/s
+    baro_alt: SensorChannelConfig = SensorChannelConfig(25.0, 0.8, 0.02)  # m
+    attitude_rp: SensorChannelConfig = SensorChannelConfig(50.0, math.radians(0.6), math.radians(0.01))  # rad
+    attitude_yaw: SensorChannelConfig = SensorChannelConfig(50.0, math.radians(1.5), math.radians(0.02))  # rad
+    gyro: SensorChannelConfig = SensorChannelConfig(200.0, math.radians(0.3), math.radians(0.005))  # rad/s
+    accel: SensorChannelConfig = SensorChannelConfig(200.0, 0.05, 0.001)  # m/s^2
+
+
+@dataclass(frozen=True)
+class TrajectoryConfig:
+    """Sizes, speeds and durations of the two trajectory libraries (ours: the paper is silent).
+
+    Horizontal flights: on the ground until ``arm_time_s``, climb at ``climb_rate_m_s`` to the
+    flight altitude, then fly the pattern for ``horizontal_duration_s`` at ``cruise_speed_m_s``.
+    Vertical flights arm at ``arm_time_s`` and climb to ``vertical_top_m`` while flying their
+    pattern.
+    """
+
+    arm_time_s: float = 1.0  # paper (vertical regime)
+    climb_rate_m_s: float = 3.0
+    climb_blend_s: float = 3.0  # smooth start and stop of the climb
+    speed_ramp_s: float = 5.0  # patterns start from hover and reach cruise speed over this
+    cruise_speed_m_s: float = 8.0
+    horizontal_duration_s: float = 180.0
+    loiter_radius_m: float = 60.0
+    racetrack_straight_m: float = 240.0
+    racetrack_radius_m: float = 50.0
+    figure8_half_length_m: float = 100.0
+    cloverleaf_radius_m: float = 100.0
+    lawnmower_leg_m: float = 240.0
+    lawnmower_spacing_m: float = 40.0
+    lawnmower_legs: int = 8
+    vertical_top_m: float = 600.0  # paper
+    vertical_speed_m_s: float = 6.0  # horizontal speed of the vertical patterns
+    vertical_climb_rate_m_s: tuple[float, float, float, float] = (3.0, 2.5, 2.5, 2.0)
+    vertical_hold_s: float = 5.0  # hover at the top before the flight ends
+    spiral_radius_m: float = 50.0
+    figure8_3d_half_length_m: float = 80.0
+    scan_leg_m: float = 200.0
+    scan_spacing_m: float = 40.0
+    scan_legs: int = 10
+
+    def validate(self) -> None:
+        _check_range("TrajectoryConfig", "cruise_speed_m_s", self.cruise_speed_m_s, 0.5, 25.0)
+        _check_range("TrajectoryConfig", "climb_rate_m_s", self.climb_rate_m_s, 0.2, 15.0)
+        _check_range("TrajectoryConfig", "vertical_top_m", self.vertical_top_m, 10.0, 3000.0)
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything :class:`~quadwind_trl.envs.QuadWindEnv` needs; presets below."""
+
+    vehicle: VehicleConfig = field(default_factory=VehicleConfig)
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+    residual: ResidualConfig = field(default_factory=ResidualConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    timing: TimingConfig = field(default_factory=TimingConfig)
+    wind: WindProfileConfig = field(default_factory=WindProfileConfig)
+    turbulence: TurbulenceConfig = field(default_factory=TurbulenceConfig)
+    sensors: SensorConfig = field(default_factory=SensorConfig)
+    trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
+
+    def validate(self) -> "EnvConfig":
+        for f in fields(self):
+            sub = getattr(self, f.name)
+            if hasattr(sub, "validate"):
+                sub.validate()
+        return self
+
+
+def config_to_dict(cfg) -> dict:
+    """A JSON-ready nested dict of a (nested) config dataclass, for manifests."""
+    if is_dataclass(cfg):
+        return {f.name: config_to_dict(getattr(cfg, f.name)) for f in fields(cfg)}
+    if isinstance(cfg, (tuple, list)):
+        return [config_to_dict(v) for v in cfg]
+    return cfg

@@ -1,0 +1,214 @@
+"""Wind at the vehicle: a turbulence-free mean profile plus spectral von Karman turbulence.
+
+Mean profile (paper Eq. 1) and veer::
+
+    U(z)     = U_ref * (max(z, z_ref) / z_ref) ** alpha              (capped at max_horizontal_wind)
+    from(z)  = from_0 + veer * (max(z, z_ref) - z_ref) / 100 m       (meteorological "from", CW from N)
+
+so the wind blows towards ``from + 180 deg``; in ENU its components are
+``(-U sin(from), -U cos(from), 0)`` (east, north, up).
+
+Turbulence is a sum of Fourier modes evaluated directly at the vehicle position (no grid):
+``u(x) = sum_m a_m d_m cos(k_m . x + phi_m)``, each mode velocity ``d_m`` perpendicular to its
+wavevector ``k_m`` (divergence free), amplitudes from the von Karman energy spectrum. This is the
+TurboGenPY spectral-mode construction without the cube: no grid cutoff, no interpolation, and
+memory O(N x modes). The field is frozen and advected with the local mean wind (Taylor's
+hypothesis): it is evaluated at ``x - xi`` where ``xi`` integrates the mean wind along the
+vehicle's altitude history (integrating, rather than using ``U(z) t``, keeps a climbing vehicle
+from sweeping through the field at a spurious speed).
+
+Batched cheaply: all sub-envs share one *skeleton* of unit wavevector directions and mode
+velocity directions; each sub-env gets its own uniformly random 3-D rotation of the skeleton,
+its own phases and its own length scale, so one episode's field is a function of its own seed
+only, and the evaluation is two small matmuls. Averaged over rotations the skeleton is exactly
+isotropic, so the realised statistics pooled over episodes are the requested ones.
+
+Layouts (``TurbulenceConfig.layout``):
+
+* ``"full"``: dimensionless wavenumbers ``kappa = k L`` log-spaced over ``kappa_range``
+  (default 2 pi / 60 to 800, i.e. k up to 2-16 rad/m for L = 400-50 m), amplitudes normalised
+  so each component has exactly unit variance before scaling (the 1.4 % of variance above the
+  top mode is folded into the resolved modes).
+* ``"paper_cube"``: the paper's cube, physical k linear from 2 pi / 1200 m to the 64-point
+  grid's Nyquist pi / 18.75 m, amplitudes straight from the spectrum: it realises only the
+  variance its k range holds (60-80 %).
+
+Intensity and anisotropy: ``sigma_u = I U(z) (max(z, z_ref)/z_ref)^(-e)`` with a mild
+``e = TurbulenceConfig.intensity_altitude_exponent``; ``sigma_v``, ``sigma_w`` follow from the
+stability regime's ratios, applied in the frame of the local mean wind (longitudinal, lateral,
+vertical).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from ..config import TurbulenceConfig, WindProfileConfig
+from .counter_rng import hash_normal, hash_uniform
+from .rotations import quat_to_rotmat
+
+VON_KARMAN_KE_L = 0.746834  # k_e L: peak wavenumber of the von Karman energy spectrum
+VON_KARMAN_NORM = 1.452762  # makes the energy spectrum integrate to 3/2 sigma^2
+
+_STREAM_ROTATION = 101
+_STREAM_PHASE = 102
+
+
+def von_karman_energy(k: Tensor, length_scale: Tensor | float, sigma: Tensor | float = 1.0) -> Tensor:
+    """Energy spectrum E(k) (m^3/s^2) whose integral over k is ``1.5 sigma^2``."""
+    k_e = VON_KARMAN_KE_L / length_scale
+    x = k / k_e
+    return VON_KARMAN_NORM * sigma**2 / k_e * x**4 / (1.0 + x * x) ** (17.0 / 6.0)
+
+
+def von_karman_longitudinal(kappa: Tensor, length_scale: float, sigma: float = 1.0) -> Tensor:
+    """One-sided 1-D longitudinal spectrum per rad/m: sigma^2 (2L/pi) / (1 + (1.339 L k)^2)^(5/6)."""
+    return sigma**2 * (2 * length_scale / math.pi) / (1 + (1.339 * length_scale * kappa) ** 2) ** (5.0 / 6.0)
+
+
+def _mode_widths(k: Tensor, log_spaced: bool) -> Tensor:
+    if log_spaced:
+        logk = k.log()
+        mid = 0.5 * (logk[1:] + logk[:-1])
+        edges = torch.cat((2 * logk[:1] - mid[:1], mid, 2 * logk[-1:] - mid[-1:])).exp()
+    else:
+        mid = 0.5 * (k[1:] + k[:-1])
+        edges = torch.cat((2 * k[:1] - mid[:1], mid, 2 * k[-1:] - mid[-1:]))
+    return edges[1:] - edges[:-1]
+
+
+class Atmosphere:
+    """Mean profile plus turbulence for a batch of episodes (pure methods over state dicts)."""
+
+    def __init__(self, wind: WindProfileConfig, turbulence: TurbulenceConfig, device: torch.device | str | None = None):
+        turbulence.validate()
+        self.wind = wind
+        self.turbulence = turbulence
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        m = turbulence.num_modes
+        gen = torch.Generator().manual_seed(turbulence.skeleton_seed)
+        direction = torch.randn(m, 3, generator=gen, dtype=torch.float64)
+        direction = direction / direction.norm(dim=-1, keepdim=True)
+        # a random unit vector perpendicular to each wavevector direction
+        helper = torch.randn(m, 3, generator=gen, dtype=torch.float64)
+        velocity_dir = torch.linalg.cross(direction, helper)
+        velocity_dir = velocity_dir / velocity_dir.norm(dim=-1, keepdim=True)
+
+        if turbulence.layout == "full":
+            lo, hi = turbulence.kappa_range
+            kappa = torch.logspace(math.log10(lo), math.log10(hi), m, dtype=torch.float64)
+            energy = von_karman_energy(kappa, 1.0) * _mode_widths(kappa, log_spaced=True)
+            amp = 2.0 * energy.sqrt()
+            amp = amp * math.sqrt(3.0 / (0.5 * (amp**2).sum()))  # unit variance per component
+            self.shared_amplitude: Tensor | None = amp.to(torch.float32).to(self.device)
+        else:
+            spacing = turbulence.cube_size_m / turbulence.cube_points
+            kappa = torch.linspace(2 * math.pi / turbulence.cube_size_m, math.pi / spacing, m, dtype=torch.float64)
+            self.shared_amplitude = None
+            self._paper_widths = _mode_widths(kappa, log_spaced=False).to(torch.float32).to(self.device)
+        self.wavenumber = kappa.to(torch.float32).to(self.device)  # kappa (full) or k in rad/m (cube)
+        self.wave_dir = direction.to(torch.float32).to(self.device)  # [M, 3]
+        self.velocity_dir = velocity_dir.to(torch.float32).to(self.device)  # [M, 3]
+        self.stability_ratios = torch.tensor(
+            [(1.0, v, w) for v, w in turbulence.stability_ratios], dtype=torch.float32, device=self.device
+        )
+
+    # --- per-episode parameters ---------------------------------------------------------------
+
+    def init_state(self, scenario: dict[str, Tensor]) -> dict[str, Tensor]:
+        """Per-episode wind parameters and the advection state, from scenario fields ``[N]``."""
+        seed = scenario["turb_seed"]
+        n = seed.shape[0]
+        q = hash_normal(seed, 0, _STREAM_ROTATION, 4)
+        rotation = quat_to_rotmat(q / q.norm(dim=-1, keepdim=True))  # uniform on SO(3)
+        base_from = torch.deg2rad(scenario["wind_dir_deg"].to(torch.float32))
+        # the skeleton is laid out in the frame of the flight's reference-height wind direction
+        heading = torch.atan2(-torch.cos(base_from), -torch.sin(base_from))
+        rotation = _rot_z(heading) @ rotation
+        length = scenario["turb_length_scale_m"].to(torch.float32)
+        if self.shared_amplitude is not None:
+            amplitude = self.shared_amplitude.expand(n, -1)
+            k_scale = 1.0 / length
+        else:
+            energy = von_karman_energy(self.wavenumber, length.unsqueeze(-1))
+            amplitude = 2.0 * (energy * self._paper_widths).sqrt()
+            k_scale = torch.ones_like(length)
+        return {
+            "wind_speed_ref": scenario["wind_speed_ref_m_s"].to(torch.float32),
+            "wind_from0": base_from,
+            "shear_alpha": scenario["shear_alpha"].to(torch.float32),
+            "veer_rad_per_m": torch.deg2rad(scenario["veer_deg_per_100m"].to(torch.float32)) / 100.0,
+            "intensity": scenario["turb_intensity"].to(torch.float32),
+            "ratios": self.stability_ratios[scenario["stability"]],
+            "rotation": rotation,
+            "phase": 2 * math.pi * hash_uniform(seed, 0, _STREAM_PHASE, self.turbulence.num_modes),
+            "amplitude": amplitude.contiguous(),
+            "k_scale": k_scale.unsqueeze(-1),
+            "air_offset": torch.zeros(n, 3, device=seed.device),
+        }
+
+    # --- evaluation ---------------------------------------------------------------------------
+
+    def mean_wind(self, state: dict[str, Tensor], z: Tensor) -> Tensor:
+        """``[N, 3]`` turbulence-free mean wind (ENU) at altitudes ``z`` ``[N]``."""
+        z_ref = self.wind.reference_height_m
+        zc = z.clamp_min(z_ref)
+        speed = state["wind_speed_ref"] * (zc / z_ref) ** state["shear_alpha"]
+        speed = speed.clamp_max(self.wind.max_horizontal_wind_m_s)
+        wind_from = state["wind_from0"] + state["veer_rad_per_m"] * (zc - z_ref)
+        return torch.stack((-speed * torch.sin(wind_from), -speed * torch.cos(wind_from), torch.zeros_like(speed)), -1)
+
+    def isotropic_turbulence(self, state: dict[str, Tensor], field_pos: Tensor) -> Tensor:
+        """Unit-variance isotropic field (ENU) at positions in the frozen field's frame."""
+        local = (field_pos.unsqueeze(-2) @ state["rotation"]).squeeze(-2)  # R^T x
+        theta = torch.addcmul(state["phase"], local @ self.wave_dir.T, state["k_scale"] * self.wavenumber)
+        modes = torch.cos(theta) * state["amplitude"]
+        return (state["rotation"] @ (modes @ self.velocity_dir).unsqueeze(-1)).squeeze(-1)
+
+    def turbulence_sigma(self, state: dict[str, Tensor], mean: Tensor, z: Tensor) -> Tensor:
+        """``[N, 3]`` standard deviations (longitudinal, lateral, vertical) at altitude ``z``."""
+        z_ref = self.wind.reference_height_m
+        speed = mean[..., :2].norm(dim=-1)
+        decay = (z.clamp_min(z_ref) / z_ref) ** (-self.turbulence.intensity_altitude_exponent)
+        return (state["intensity"] * speed * decay).unsqueeze(-1) * state["ratios"]
+
+    def sample(
+        self, state: dict[str, Tensor], pos: Tensor, dt: float
+    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+        """Mean and total wind ``[N, 3]`` at ``pos``; the state advected by ``dt`` seconds.
+
+        The returned wind applies over the coming ``dt`` (the simulator holds it over the
+        control step's physics substeps).
+        """
+        z = pos[..., 2]
+        mean = self.mean_wind(state, z)
+        total = mean
+        if self.turbulence.enabled:
+            iso = self.isotropic_turbulence(state, pos - state["air_offset"])
+            sigma = self.turbulence_sigma(state, mean, z)
+            # anisotropy in the local mean-wind frame: rotate in, scale, rotate out
+            heading = torch.atan2(mean[..., 1], mean[..., 0])
+            c, s = torch.cos(heading), torch.sin(heading)
+            along = c * iso[..., 0] + s * iso[..., 1]
+            across = -s * iso[..., 0] + c * iso[..., 1]
+            along, across, up = sigma[..., 0] * along, sigma[..., 1] * across, sigma[..., 2] * iso[..., 2]
+            gust = torch.stack((c * along - s * across, s * along + c * across, up), -1)
+            total = mean + gust
+        total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
+        state = dict(state, air_offset=state["air_offset"] + dt * mean)
+        return mean, total, state
+
+
+def _cap_horizontal(wind: Tensor, cap: float) -> Tensor:
+    horiz = wind[..., :2]
+    norm = horiz.norm(dim=-1, keepdim=True)
+    scale = torch.where(norm > cap, cap / norm.clamp_min(1e-9), 1.0)
+    return torch.cat((horiz * scale, wind[..., 2:]), -1)
+
+
+def _rot_z(angle: Tensor) -> Tensor:
+    c, s = torch.cos(angle), torch.sin(angle)
+    zero, one = torch.zeros_like(angle), torch.ones_like(angle)
+    return torch.stack((c, -s, zero, s, c, zero, zero, zero, one), -1).unflatten(-1, (3, 3))

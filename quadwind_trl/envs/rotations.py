@@ -1,0 +1,111 @@
+"""Batched rotation helpers. Quaternions are ``(w, x, y, z)``, unit, rotating body to world."""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+
+def quat_mul(a: Tensor, b: Tensor) -> Tensor:
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack(
+        (
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ),
+        -1,
+    )
+
+
+def quat_to_rotmat(q: Tensor) -> Tensor:
+    """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body``; its columns are the body axes."""
+    w, x, y, z = q.unbind(-1)
+    xx, yy, zz = x * x, y * y, z * z
+    xy, xz, yz = x * y, x * z, y * z
+    wx, wy, wz = w * x, w * y, w * z
+    return torch.stack(
+        (
+            1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
+            2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
+            2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy),
+        ),
+        -1,
+    ).unflatten(-1, (3, 3))
+
+
+def rotmat_to_quat(r: Tensor) -> Tensor:
+    """Inverse of :func:`quat_to_rotmat` (Shepperd's method, branch-free over the batch)."""
+    m00, m01, m02 = r[..., 0, 0], r[..., 0, 1], r[..., 0, 2]
+    m10, m11, m12 = r[..., 1, 0], r[..., 1, 1], r[..., 1, 2]
+    m20, m21, m22 = r[..., 2, 0], r[..., 2, 1], r[..., 2, 2]
+    candidates = torch.stack(
+        (
+            torch.stack((1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01), -1),
+            torch.stack((m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20), -1),
+            torch.stack((m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21), -1),
+            torch.stack((m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22), -1),
+        ),
+        -2,
+    )
+    diag = torch.stack((m00 + m11 + m22, m00, m11, m22), -1)
+    best = diag.argmax(-1, keepdim=True)
+    q = torch.gather(candidates, -2, best.unsqueeze(-1).expand(*best.shape[:-1], 1, 4)).squeeze(-2)
+    q = q / q.norm(dim=-1, keepdim=True)
+    return q * torch.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
+    """Z-Y-X (yaw, then pitch, then roll) Euler angles in radians to a quaternion."""
+    cr, sr = torch.cos(roll / 2), torch.sin(roll / 2)
+    cp, sp = torch.cos(pitch / 2), torch.sin(pitch / 2)
+    cy, sy = torch.cos(yaw / 2), torch.sin(yaw / 2)
+    return torch.stack(
+        (
+            cr * cp * cy + sr * sp * sy,
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+        ),
+        -1,
+    )
+
+
+def euler_from_rotmat(r: Tensor) -> Tensor:
+    """``[..., 3]`` Z-Y-X Euler angles (roll, pitch, yaw) in radians."""
+    roll = torch.atan2(r[..., 2, 1], r[..., 2, 2])
+    pitch = torch.asin(torch.clamp(-r[..., 2, 0], -1.0, 1.0))
+    yaw = torch.atan2(r[..., 1, 0], r[..., 0, 0])
+    return torch.stack((roll, pitch, yaw), -1)
+
+
+def rotmat_from_euler(euler: Tensor) -> Tensor:
+    roll, pitch, yaw = euler.unbind(-1)
+    return quat_to_rotmat(quat_from_euler(roll, pitch, yaw))
+
+
+def quat_integrate(q: Tensor, omega_body: Tensor, dt: float) -> Tensor:
+    """Rotate ``q`` by a constant body rate over ``dt`` (exact exponential map), renormalised."""
+    half_angle = 0.5 * dt * omega_body
+    theta = half_angle.norm(dim=-1, keepdim=True)
+    # sin(theta)/theta, with its Taylor series where theta is tiny (no division by zero)
+    sinc = torch.where(theta < 1e-4, 1.0 - theta * theta / 6.0, torch.sin(theta) / theta.clamp_min(1e-12))
+    dq = torch.cat((torch.cos(theta), sinc * half_angle), -1)
+    out = quat_mul(q, dq)
+    return out / out.norm(dim=-1, keepdim=True)
+
+
+def rotate(r: Tensor, v: Tensor) -> Tensor:
+    """``R @ v`` for batches of matrices and vectors."""
+    return (r @ v.unsqueeze(-1)).squeeze(-1)
+
+
+def rotate_inverse(r: Tensor, v: Tensor) -> Tensor:
+    """``R^T @ v``."""
+    return (v.unsqueeze(-2) @ r).squeeze(-2)
+
+
+def vee(m: Tensor) -> Tensor:
+    """The vector of a skew-symmetric matrix."""
+    return torch.stack((m[..., 2, 1], m[..., 0, 2], m[..., 1, 0]), -1)

@@ -1,0 +1,215 @@
+"""The batched simulator core: pure functions over a dict of ``[N, ...]`` state tensors.
+
+:class:`QuadSimulator` composes the vehicle, the PD cascade, the trajectory library, the
+atmosphere and the sensors. Its two methods are pure (state in, state out), so the TorchRL env,
+the PD-only runner and ``torch.compile`` all drive exactly the same code.
+
+One control step (10 ms) from state ``k`` (which already holds the wind, reference, measurements
+and PD wrench *at* step ``k``):
+
+1. residual: scale the action, smooth it, limit its slew, add it to the PD wrench;
+2. allocate rotor speeds (motors off before arming) and run 5 physics substeps with the wind held;
+3. at step ``k + 1``: sample the wind (advecting the frozen turbulence), the reference, the
+   sensors, and the PD wrench for the next step; the reward, termination and truncation.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from tensordict import TensorDict
+from torch import Tensor
+
+from ..config import EnvConfig
+from .atmosphere import Atmosphere
+from .controller import ControllerParams, pd_control
+from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotmat_from_euler
+from .scenarios import SCENARIO_FIELDS
+from .sensors import SensorSuite
+from .trajectories import TrajectoryLibrary
+from .vehicle import VehicleParams, allocate, physics_step
+
+_TRAJECTORY_CACHE: dict = {}
+
+
+def trajectory_library(cfg: EnvConfig, device: torch.device) -> TrajectoryLibrary:
+    """Trajectory tables are built once per (config, device) in a process."""
+    key = (cfg.trajectories, cfg.timing.control_dt_s, str(device))
+    if key not in _TRAJECTORY_CACHE:
+        _TRAJECTORY_CACHE[key] = TrajectoryLibrary(cfg.trajectories, cfg.timing.control_dt_s, device)
+    return _TRAJECTORY_CACHE[key]
+
+
+def merge_rows(mask: Tensor, new: dict[str, Tensor], old: dict[str, Tensor]) -> dict[str, Tensor]:
+    """Row-wise ``where(mask, new, old)`` over every entry (``mask`` is bool ``[N]``)."""
+    out = {}
+    for key, value in new.items():
+        m = mask.reshape(mask.shape + (1,) * (value.ndim - 1))
+        out[key] = torch.where(m, value, old[key])
+    return out
+
+
+class QuadSimulator:
+    def __init__(self, cfg: EnvConfig | None = None, device: torch.device | str | None = None):
+        self.cfg = (cfg or EnvConfig()).validate()
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        c, dev = self.cfg, self.device
+        self.vehicle = VehicleParams.from_config(c.vehicle, dev)
+        self.controller = ControllerParams.from_config(c.controller, c.vehicle, dev)
+        self.trajectories = trajectory_library(c, dev)
+        self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
+        self.sensors = SensorSuite(c.sensors, c.timing.control_dt_s, dev)
+        self.action_scale = torch.tensor(c.residual.action_scale, device=dev)
+        self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
+        self.control_dt = c.timing.control_dt_s
+        self.arm_step = self.trajectories.arm_step
+        self.grace_steps = self.arm_step + int(round(c.reward.takeoff_grace_s / self.control_dt))
+        self.cos_crash_tilt = math.cos(math.radians(c.reward.crash_tilt_deg))
+
+    # --- episode start ------------------------------------------------------------------------
+
+    def initial_state(self, scenario: TensorDict) -> dict[str, Tensor]:
+        """The state at each scenario's ``start_step``: at the reference, level (with the
+        reference heading), at rest relative to the reference; rotors at hover if airborne."""
+        sc = {k: scenario.get(k).to(self.device) for k in SCENARIO_FIELDS}
+        n = sc["traj_id"].shape[0]
+        pattern_start, end_step = self.trajectories.schedule(sc["traj_id"], sc["altitude_m"])
+        # a negative start_step means "at the start of the pattern" (airborne, after any climb)
+        step = torch.where(sc["start_step"] < 0, pattern_start, sc["start_step"])
+        ref = self.trajectories.reference(sc["traj_id"], step, pattern_start, sc["altitude_m"])
+        zero = torch.zeros_like(ref.yaw)
+        airborne = ref.pos[..., 2:] > 0
+        hover = self.cfg.vehicle.hover_rotor_speed_rad_s
+        state = {f"scenario.{k}": v for k, v in sc.items()}
+        state.update(
+            step=step,
+            pattern_start=pattern_start,
+            end_step=end_step,
+            pos=ref.pos,
+            vel=ref.vel,
+            quat=quat_from_euler(zero, zero, ref.yaw).squeeze(-2),
+            omega=torch.zeros(n, 3, device=self.device),
+            rotor=torch.where(airborne, hover, 0.0).expand(n, 4).clone(),
+            specific_force=torch.zeros(n, 3, device=self.device),
+            ff=torch.zeros(n, 4, device=self.device),
+            cmd=torch.zeros(n, 4, device=self.device),
+            reward=torch.zeros(n, 1, device=self.device),
+            terminated=torch.zeros(n, 1, dtype=torch.bool, device=self.device),
+        )
+        state["specific_force"] = (
+            quat_to_rotmat(state["quat"]).transpose(-1, -2) @ torch.tensor([0.0, 0.0, 9.81], device=self.device)
+        )
+        state.update({f"wind.{k}": v for k, v in self.atmosphere.init_state(sc).items()})
+        state.update({f"sensor.{k}": v for k, v in self.sensors.init_state(sc["sensor_seed"]).items()})
+        return self._observe_instant(state, first=True)
+
+    def reset(self, state: dict[str, Tensor] | None, scenario: TensorDict, mask: Tensor | None = None) -> dict[str, Tensor]:
+        """Start the episodes of rows ``mask`` (all rows if None) from ``scenario`` (all rows);
+        other rows keep their state untouched."""
+        new = self.initial_state(scenario)
+        if state is None or mask is None:
+            return new
+        return merge_rows(mask.reshape(-1), new, state)
+
+    # --- one control step ---------------------------------------------------------------------
+
+    def step(self, state: dict[str, Tensor], action: Tensor) -> dict[str, Tensor]:
+        """Advance every row by one control step under residual ``action`` in ``[-1, 1]^4``."""
+        r = self.cfg.residual
+        ff_prev = state["ff"]
+        target = action.clamp(-1.0, 1.0) * self.action_scale
+        ff = r.smoothing * ff_prev + (1.0 - r.smoothing) * target
+        ff = ff_prev + torch.maximum(torch.minimum(ff - ff_prev, self.slew_limit), -self.slew_limit)
+        cmd = state["pd_wrench"] + ff
+        armed = (state["step"] >= self.arm_step).unsqueeze(-1)
+        rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
+
+        pos, vel, quat, omega, rotor = state["pos"], state["vel"], state["quat"], state["omega"], state["rotor"]
+        wind = state["wind_total"]
+        for _ in range(self.cfg.timing.control_substeps):
+            pos, vel, quat, omega, rotor, specific_force = physics_step(
+                pos, vel, quat, omega, rotor, rotor_cmd, wind, self.vehicle, self.cfg.timing.physics_dt_s
+            )
+        new = dict(state, pos=pos, vel=vel, quat=quat, omega=omega, rotor=rotor, specific_force=specific_force)
+        new.update(step=state["step"] + 1, ff=ff, cmd=cmd)
+        new = self._observe_instant(new, first=False)
+
+        rw = self.cfg.reward
+        err = new["pos"] - new["ref_pos"]
+        reward = (
+            rw.alive_bonus
+            - rw.w_xy * err[..., :2].norm(dim=-1, keepdim=True)
+            - rw.w_z * err[..., 2:].abs()
+            - rw.w_ff * ff.norm(dim=-1, keepdim=True)
+            - rw.w_dff * (ff - ff_prev).norm(dim=-1, keepdim=True)
+        )
+        finite = torch.stack([torch.isfinite(new[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
+        upright = quat_to_rotmat(new["quat"])[..., 2, 2:3] > self.cos_crash_tilt
+        grounded = (new["pos"][..., 2:] <= 0.0) & (new["step"] > self.grace_steps).unsqueeze(-1)
+        terminated = ~finite | ~upright | grounded
+        new["reward"] = torch.where(terminated, reward + rw.crash_penalty, reward).nan_to_num(rw.crash_penalty)
+        new["terminated"] = terminated
+        return _sanitize(new, ~finite)
+
+    # --- what the vehicle and the world look like at one instant --------------------------------
+
+    def _observe_instant(self, state: dict[str, Tensor], first: bool) -> dict[str, Tensor]:
+        """Wind, reference, sensors and the PD wrench at the state's current step."""
+        wind_state = {k[5:]: v for k, v in state.items() if k.startswith("wind.")}
+        mean, total, wind_state = self.atmosphere.sample(wind_state, state["pos"], self.control_dt)
+        ref = self.trajectories.reference(
+            state["scenario.traj_id"], state["step"], state["pattern_start"], state["scenario.altitude_m"]
+        )
+        rot = quat_to_rotmat(state["quat"])
+        euler = euler_from_rotmat(rot)
+        truth = torch.cat(
+            (state["pos"], state["vel"], state["pos"][..., 2:], euler, state["omega"], state["specific_force"]), -1
+        )
+        sensor_state = {k[7:]: v for k, v in state.items() if k.startswith("sensor.")}
+        force = torch.ones_like(state["step"], dtype=torch.bool).unsqueeze(-1) if first else None
+        meas, sensor_state = self.sensors.measure(sensor_state, truth, state["step"], force=force)
+
+        if self.cfg.controller.feedback == "sensors":
+            nav_pos = torch.cat((meas[..., 0:2], meas[..., 6:7]), -1)
+            nav = (nav_pos, meas[..., 3:6], rotmat_from_euler(meas[..., 7:10]), meas[..., 10:13])
+        else:
+            nav = (state["pos"], state["vel"], rot, state["omega"])
+        pd = pd_control(*nav, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw, ref.yaw_rate, self.controller)
+
+        out = dict(state)
+        out.update({f"wind.{k}": v for k, v in wind_state.items()})
+        out.update({f"sensor.{k}": v for k, v in sensor_state.items()})
+        out.update(
+            wind_mean=mean,
+            wind_total=total,
+            ref_pos=ref.pos,
+            ref_vel=ref.vel,
+            ref_acc=ref.acc,
+            ref_yaw=ref.yaw,
+            meas=meas,
+            pd_wrench=pd.wrench,
+            tilt_cmd=pd.tilt_cmd,
+            tilt_saturated=pd.tilt_saturated,
+        )
+        return out
+
+
+def _sanitize(state: dict[str, Tensor], broken: Tensor) -> dict[str, Tensor]:
+    """Rows whose physics went non-finite are parked at their reference, level and at rest, so
+    nothing non-finite leaves the simulator (they are terminated in the same step). Branch-free:
+    no host synchronisation in the step."""
+    level = torch.zeros_like(state["quat"])
+    level[..., 0] = 1.0
+    fixes = {
+        "pos": state["ref_pos"],
+        "vel": torch.zeros_like(state["vel"]),
+        "quat": level,
+        "omega": torch.zeros_like(state["omega"]),
+        "specific_force": torch.zeros_like(state["specific_force"]),
+    }
+    out = dict(state)
+    for key, value in fixes.items():
+        out[key] = torch.where(broken, value, state[key])
+    for key in ("meas", "pd_wrench", "cmd", "ff", "wind_total", "wind_mean"):
+        out[key] = torch.where(broken, 0.0, state[key].nan_to_num())
+    return out
