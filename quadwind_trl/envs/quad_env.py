@@ -188,6 +188,10 @@ class QuadWindEnv(EnvBase):
             device=self.device,
         )
 
+    def sim_state(self, key: str) -> torch.Tensor:
+        """A copy of one entry of the simulator state (e.g. ``"pattern_start"``, ``"rotor"``)."""
+        return self.state[key].clone()
+
     def scenario(self) -> TensorDict:
         """The scenarios of the episodes now running (a copy)."""
         return make_scenarios(

@@ -34,9 +34,11 @@ _TRAJECTORY_CACHE: dict = {}
 
 def trajectory_library(cfg: EnvConfig, device: torch.device) -> TrajectoryLibrary:
     """Trajectory tables are built once per (config, device) in a process."""
-    key = (cfg.trajectories, cfg.timing.control_dt_s, str(device))
+    key = (cfg.trajectories, cfg.timing, str(device))
     if key not in _TRAJECTORY_CACHE:
-        _TRAJECTORY_CACHE[key] = TrajectoryLibrary(cfg.trajectories, cfg.timing.control_dt_s, device)
+        _TRAJECTORY_CACHE[key] = TrajectoryLibrary(
+            cfg.trajectories, cfg.timing.control_dt_s, device, align_steps=cfg.timing.log_every_control_steps
+        )
     return _TRAJECTORY_CACHE[key]
 
 

@@ -236,10 +236,13 @@ class TrajectoryLibrary:
     both are batched over sub-envs with different trajectories and altitudes.
     """
 
-    def __init__(self, cfg: TrajectoryConfig, control_dt_s: float, device: torch.device | str | None = None):
+    def __init__(
+        self, cfg: TrajectoryConfig, control_dt_s: float, device: torch.device | str | None = None, align_steps: int = 10
+    ):
         cfg.validate()
         self.cfg = cfg
         self.dt = control_dt_s
+        self.align_steps = align_steps  # pattern starts fall on the flight record's grid
         patterns = _patterns(cfg)
         tables = [_tabulate(p, cfg, control_dt_s) for p in patterns]
         longest = max(t.shape[0] for t in tables)
@@ -249,6 +252,8 @@ class TrajectoryLibrary:
         self.pattern_steps = torch.tensor([t.shape[0] for t in tables], dtype=torch.int64, device=device)
         self.is_horizontal = torch.tensor([i < len(HORIZONTAL) for i in range(len(TRAJECTORIES))], device=device)
         self.arm_step = int(round(cfg.arm_time_s / control_dt_s))
+        if self.arm_step % align_steps:
+            raise ValueError(f"TrajectoryConfig.arm_time_s={cfg.arm_time_s} must fall on the {align_steps}-step log grid")
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -261,6 +266,7 @@ class TrajectoryLibrary:
         horizontal = self.is_horizontal[traj_id]
         climb_s = torch.where(horizontal, altitude_m / self.cfg.climb_rate_m_s + self.cfg.climb_blend_s, 0.0)
         start = self.arm_step + torch.ceil(climb_s / self.dt).to(torch.int64)
+        start = (start + self.align_steps - 1) // self.align_steps * self.align_steps
         return start, start + self.pattern_steps[traj_id]
 
     def reference(self, traj_id: Tensor, step: Tensor, pattern_start: Tensor, altitude_m: Tensor) -> Reference:
