@@ -225,6 +225,7 @@ class TrajectoryConfig:
     scan_leg_m: float = 200.0
     scan_spacing_m: float = 40.0
     scan_legs: int = 10
+    hover_duration_s: float = 60.0
 
     def validate(self) -> None:
         _check_range("TrajectoryConfig", "cruise_speed_m_s", self.cruise_speed_m_s, 0.5, 25.0)

@@ -14,7 +14,7 @@ Frames and conventions, fixed once for the whole project:
 from .quad_env import QuadWindEnv, ScenarioSampler
 from .scenarios import RegimeRanges, make_scenarios, sample_regimes
 from .simulator import QuadSimulator
-from .trajectories import HORIZONTAL, TRAJECTORIES, TRAJECTORY_IDS, VERTICAL
+from .trajectories import HORIZONTAL, HOVER, TRAJECTORIES, TRAJECTORY_IDS, VERTICAL
 
 __all__ = [
     "QuadWindEnv",
@@ -24,6 +24,7 @@ __all__ = [
     "make_scenarios",
     "sample_regimes",
     "HORIZONTAL",
+    "HOVER",
     "VERTICAL",
     "TRAJECTORIES",
     "TRAJECTORY_IDS",

@@ -60,7 +60,9 @@ def von_karman_energy(k: Tensor, length_scale: Tensor | float, sigma: Tensor | f
     """Energy spectrum E(k) (m^3/s^2) whose integral over k is ``1.5 sigma^2``."""
     k_e = VON_KARMAN_KE_L / length_scale
     x = k / k_e
-    return VON_KARMAN_NORM * sigma**2 / k_e * x**4 / (1.0 + x * x) ** (17.0 / 6.0)
+    x2 = x * x
+    # exp/log rather than ``**``: see Atmosphere._profile (batch-independent rounding)
+    return VON_KARMAN_NORM * sigma**2 / k_e * (x2 * x2) * torch.exp(-(17.0 / 6.0) * torch.log(1.0 + x2))
 
 
 def von_karman_longitudinal(kappa: Tensor, length_scale: float, sigma: float = 1.0) -> Tensor:
@@ -111,6 +113,9 @@ class Atmosphere:
         self.wavenumber = kappa.to(torch.float32).to(self.device)  # kappa (full) or k in rad/m (cube)
         self.wave_dir = direction.to(torch.float32).to(self.device)  # [M, 3]
         self.velocity_dir = velocity_dir.to(torch.float32).to(self.device)  # [M, 3]
+        # kappa_m d_m: dimensionless (full; scaled by 1 / L per episode) or in rad/m (cube)
+        self._wavevector = (kappa.unsqueeze(-1) * direction).to(torch.float32).to(self.device)  # [M, 3]
+        self._velocity_dir_t = self.velocity_dir.T.contiguous()  # [3, M]
         self.stability_ratios = torch.tensor(
             [(1.0, v, w) for v, w in turbulence.stability_ratios], dtype=torch.float32, device=self.device
         )
@@ -122,11 +127,13 @@ class Atmosphere:
         seed = scenario["turb_seed"]
         n = seed.shape[0]
         q = hash_normal(seed, 0, _STREAM_ROTATION, 4)
-        rotation = quat_to_rotmat(q / q.norm(dim=-1, keepdim=True))  # uniform on SO(3)
+        qw, qx, qy, qz = q.unbind(-1)
+        q = q / torch.sqrt(qw * qw + qx * qx + qy * qy + qz * qz).unsqueeze(-1)
+        rotation = quat_to_rotmat(q)  # uniform on SO(3)
         base_from = torch.deg2rad(scenario["wind_dir_deg"].to(torch.float32))
-        # the skeleton is laid out in the frame of the flight's reference-height wind direction
-        heading = torch.atan2(-torch.cos(base_from), -torch.sin(base_from))
-        rotation = _rot_z(heading) @ rotation
+        # the skeleton is laid out in the frame of the flight's reference-height wind direction:
+        # a rotation about z taking east to the direction the wind blows towards, (-sin, -cos)
+        rotation = _matmul3(_rot_z(-torch.sin(base_from), -torch.cos(base_from)), rotation)
         length = scenario["turb_length_scale_m"].to(torch.float32)
         if self.shared_amplitude is not None:
             amplitude = self.shared_amplitude.expand(n, -1)
@@ -151,27 +158,47 @@ class Atmosphere:
 
     # --- evaluation ---------------------------------------------------------------------------
 
-    def mean_wind(self, state: dict[str, Tensor], z: Tensor) -> Tensor:
-        """``[N, 3]`` turbulence-free mean wind (ENU) at altitudes ``z`` ``[N]``."""
+    def _profile(self, state: dict[str, Tensor], z: Tensor) -> tuple[Tensor, Tensor]:
+        """Capped mean speed and the "from" direction (rad) at altitudes ``z``."""
         z_ref = self.wind.reference_height_m
         zc = z.clamp_min(z_ref)
-        speed = state["wind_speed_ref"] * (zc / z_ref) ** state["shear_alpha"]
+        # (zc / z_ref) ** alpha written as exp(alpha log(.)): torch's CPU pow (and atan2) round
+        # differently in the vectorised body and the scalar tail of a kernel, which made a row's
+        # wind depend on the batch size; exp and log do not (tests/test_atmosphere.py)
+        speed = state["wind_speed_ref"] * torch.exp(state["shear_alpha"] * torch.log(zc / z_ref))
         speed = speed.clamp_max(self.wind.max_horizontal_wind_m_s)
         wind_from = state["wind_from0"] + state["veer_rad_per_m"] * (zc - z_ref)
+        return speed, wind_from
+
+    def mean_wind(self, state: dict[str, Tensor], z: Tensor) -> Tensor:
+        """``[N, 3]`` turbulence-free mean wind (ENU) at altitudes ``z`` ``[N]``."""
+        speed, wind_from = self._profile(state, z)
         return torch.stack((-speed * torch.sin(wind_from), -speed * torch.cos(wind_from), torch.zeros_like(speed)), -1)
 
     def isotropic_turbulence(self, state: dict[str, Tensor], field_pos: Tensor) -> Tensor:
-        """Unit-variance isotropic field (ENU) at positions in the frozen field's frame."""
-        local = (field_pos.unsqueeze(-2) @ state["rotation"]).squeeze(-2)  # R^T x
-        theta = torch.addcmul(state["phase"], local @ self.wave_dir.T, state["k_scale"] * self.wavenumber)
+        """Unit-variance isotropic field (ENU) at positions in the frozen field's frame.
+
+        ``field_pos`` is ``[N, 3]`` (or ``[..., N, 3]``: several points per episode). Written
+        with elementwise operations in a fixed order and one sum over each row's contiguous
+        modes, never a matmul: BLAS picks kernels (and summation orders) by the batch size, which
+        made a row's wind depend on how many rows shared its batch (tests/test_atmosphere.py).
+        """
+        rot = state["rotation"]
+        x, y, z = field_pos[..., 0], field_pos[..., 1], field_pos[..., 2]
+        k_scale = state["k_scale"]
+        theta = state["phase"]
+        for c in range(3):  # theta = phase + sum_c (R^T x)_c k_scale kappa_m d_mc
+            local = x * rot[..., 0, c] + y * rot[..., 1, c] + z * rot[..., 2, c]
+            theta = theta + (local.unsqueeze(-1) * k_scale) * self._wavevector[:, c]
         modes = torch.cos(theta) * state["amplitude"]
-        return (state["rotation"] @ (modes @ self.velocity_dir).unsqueeze(-1)).squeeze(-1)
+        bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1) for c in range(3))  # skeleton frame
+        return torch.stack([rot[..., r, 0] * bx + rot[..., r, 1] * by + rot[..., r, 2] * bz for r in range(3)], -1)
 
     def turbulence_sigma(self, state: dict[str, Tensor], mean: Tensor, z: Tensor) -> Tensor:
         """``[N, 3]`` standard deviations (longitudinal, lateral, vertical) at altitude ``z``."""
         z_ref = self.wind.reference_height_m
-        speed = mean[..., :2].norm(dim=-1)
-        decay = (z.clamp_min(z_ref) / z_ref) ** (-self.turbulence.intensity_altitude_exponent)
+        speed = torch.sqrt(mean[..., 0] * mean[..., 0] + mean[..., 1] * mean[..., 1])
+        decay = torch.exp(-self.turbulence.intensity_altitude_exponent * torch.log(z.clamp_min(z_ref) / z_ref))
         return (state["intensity"] * speed * decay).unsqueeze(-1) * state["ratios"]
 
     def sample(
@@ -188,9 +215,10 @@ class Atmosphere:
         if self.turbulence.enabled:
             iso = self.isotropic_turbulence(state, pos - state["air_offset"])
             sigma = self.turbulence_sigma(state, mean, z)
-            # anisotropy in the local mean-wind frame: rotate in, scale, rotate out
-            heading = torch.atan2(mean[..., 1], mean[..., 0])
-            c, s = torch.cos(heading), torch.sin(heading)
+            # anisotropy in the local mean-wind frame: rotate in, scale, rotate out; (c, s) is the
+            # unit vector the mean wind blows towards (no atan2: see _profile)
+            _, wind_from = self._profile(state, z)
+            c, s = -torch.sin(wind_from), -torch.cos(wind_from)
             along = c * iso[..., 0] + s * iso[..., 1]
             across = -s * iso[..., 0] + c * iso[..., 1]
             along, across, up = sigma[..., 0] * along, sigma[..., 1] * across, sigma[..., 2] * iso[..., 2]
@@ -203,12 +231,17 @@ class Atmosphere:
 
 def _cap_horizontal(wind: Tensor, cap: float) -> Tensor:
     horiz = wind[..., :2]
-    norm = horiz.norm(dim=-1, keepdim=True)
+    norm = torch.sqrt(horiz[..., 0:1] * horiz[..., 0:1] + horiz[..., 1:2] * horiz[..., 1:2])
     scale = torch.where(norm > cap, cap / norm.clamp_min(1e-9), 1.0)
     return torch.cat((horiz * scale, wind[..., 2:]), -1)
 
 
-def _rot_z(angle: Tensor) -> Tensor:
-    c, s = torch.cos(angle), torch.sin(angle)
-    zero, one = torch.zeros_like(angle), torch.ones_like(angle)
+def _rot_z(c: Tensor, s: Tensor) -> Tensor:
+    """Rotation about z by the angle whose cosine and sine are ``c`` and ``s``."""
+    zero, one = torch.zeros_like(c), torch.ones_like(c)
     return torch.stack((c, -s, zero, s, c, zero, zero, zero, one), -1).unflatten(-1, (3, 3))
+
+
+def _matmul3(a: Tensor, b: Tensor) -> Tensor:
+    """``a @ b`` for batches of 3x3 matrices, elementwise in a fixed order (batch-independent)."""
+    return a[..., :, 0:1] * b[..., 0:1, :] + a[..., :, 1:2] * b[..., 1:2, :] + a[..., :, 2:3] * b[..., 2:3, :]

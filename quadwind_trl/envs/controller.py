@@ -28,7 +28,7 @@ import torch
 from torch import Tensor
 
 from ..config import GRAVITY_M_S2, ControllerConfig, VehicleConfig
-from .rotations import vee
+from .rotations import matmul, matvec, vee
 
 
 @dataclass
@@ -116,9 +116,9 @@ def pd_control(
         ),
         -1,
     )
-    rel = rot.transpose(-1, -2) @ rot_des
+    rel = matmul(rot.transpose(-1, -2), rot_des)
     err_rot = 0.5 * vee(rel.transpose(-1, -2) - rel)
-    err_rate = omega - (rel @ omega_des.unsqueeze(-1)).squeeze(-1)
+    err_rate = omega - matvec(rel, omega_des)
     torque = -p.k_att * err_rot - p.k_rate * err_rate + torch.linalg.cross(omega, p.inertia * omega)
 
     tilt_cmd = torch.acos((b3_des[..., 2:]).clamp(-1.0, 1.0))

@@ -61,8 +61,10 @@ class QuadWindEnv(EnvBase):
       ``wind`` the total air velocity, ``mean_wind`` the turbulence-free mean).
 
     Episodes: ``env.reset()`` draws scenarios from ``scenario_sampler``; to replay given
-    episodes, pass them: ``env.reset(TensorDict(scenario=make_scenarios(...), batch_size=[N]))``
-    (with ``"_reset"`` to restart only some rows). Episodes terminate on a crash (ground contact
+    episodes, pass them as a keyword: ``env.reset(scenario=make_scenarios(N, ...))`` (with a
+    ``"_reset"`` tensordict, ``env.reset(td, scenario=...)``, to restart only some rows). A keyword
+    rather than a tensordict entry because TorchRL's partial-reset merge overwrites, in place,
+    input entries the env does not return, and ``TransformedEnv`` drops them. Episodes terminate on a crash (ground contact
     after take-off, tilt beyond ``RewardConfig.crash_tilt_deg``, non-finite state: reward
     ``-100``) and are truncated at the trajectory's end.
     """
@@ -132,11 +134,10 @@ class QuadWindEnv(EnvBase):
         self._row_keys = seed * 1_000_003 + torch.arange(n, device=self.device, dtype=torch.int64)
         self._episode_count = torch.zeros(n, dtype=torch.int64, device=self.device)
 
-    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+    def _reset(self, tensordict: TensorDictBase | None = None, scenario: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.batch_size[0]
         mask = tensordict.get("_reset", None) if tensordict is not None else None
         mask = torch.ones(n, dtype=torch.bool, device=self.device) if mask is None else mask.reshape(n)
-        scenario = tensordict.get("scenario", None) if tensordict is not None else None
         if scenario is None:
             scenario = self.scenario_sampler(self._row_keys, self._episode_count)
         self._episode_count = self._episode_count + mask.to(torch.int64)

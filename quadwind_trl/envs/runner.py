@@ -136,7 +136,7 @@ def _fly_chunk(
 ) -> FlightResults:
     n = base.batch_size[0]
     dev = base.device
-    td = env.reset(TensorDict(scenario=scenarios.to(dev), batch_size=[n], device=dev))
+    td = env.reset(scenario=scenarios.to(dev))
     pattern_start = base.sim_state("pattern_start")
     num_logs = num_steps // log_every + 1
     records = [td.select(*log_keys)]

@@ -87,7 +87,10 @@ def latin_hypercube(n: int, dims: int, seed: int) -> torch.Tensor:
 
 def wind_ceiling_bound(ranges: RegimeRanges, alpha: torch.Tensor, altitude: torch.Tensor) -> torch.Tensor:
     """Largest U_ref whose mean wind at ``altitude`` stays within the ceiling."""
-    factor = (altitude.clamp_min(ranges.reference_height_m) / ranges.reference_height_m) ** alpha
+    # exp(alpha log(.)) rather than ``**``: torch's CPU pow rounds differently in a kernel's
+    # vectorised body and its scalar tail, so a row of random_scenarios would depend on the
+    # batch size (tests/test_scenarios.py)
+    factor = torch.exp(alpha * torch.log(altitude.clamp_min(ranges.reference_height_m) / ranges.reference_height_m))
     return torch.minimum(torch.full_like(alpha, ranges.wind_speed_m_s[1]), ranges.wind_ceiling_m_s / factor)
 
 

@@ -84,7 +84,10 @@ class SensorSuite:
         draws = hash_normal(state["seed"], step, _STREAM_SENSORS, 2 * NUM_SENSOR_CHANNELS)
         bias = torch.where(tick, state["bias"] + self.bias_step_std * draws[..., NUM_SENSOR_CHANNELS:], state["bias"])
         sample = truth + bias + self.noise_std * draws[..., :NUM_SENSOR_CHANNELS]
-        yaw = sample[..., _YAW : _YAW + 1]
-        sample = torch.cat((sample[..., :_YAW], torch.atan2(torch.sin(yaw), torch.cos(yaw)), sample[..., _YAW + 1 :]), -1)
+        # wrap yaw to [-pi, pi) with a remainder, not atan2(sin, cos): torch's CPU atan2 rounds
+        # differently in a kernel's vectorised body and its scalar tail, which made a row's
+        # measurement depend on the batch size (tests/test_sensors.py)
+        yaw = torch.remainder(sample[..., _YAW : _YAW + 1] + math.pi, 2.0 * math.pi) - math.pi
+        sample = torch.cat((sample[..., :_YAW], yaw, sample[..., _YAW + 1 :]), -1)
         held = torch.where(tick, sample, state["held"])
         return held, dict(state, bias=bias, held=held)

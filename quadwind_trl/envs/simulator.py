@@ -20,14 +20,14 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-from ..config import EnvConfig
+from ..config import GRAVITY_M_S2, EnvConfig
 from .atmosphere import Atmosphere
 from .controller import ControllerParams, pd_control
-from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotmat_from_euler
+from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse, rotmat_from_euler
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
 from .trajectories import TrajectoryLibrary
-from .vehicle import VehicleParams, allocate, physics_step
+from .vehicle import RigidBody, VehicleParams, allocate, physics_step
 
 _TRAJECTORY_CACHE: dict = {}
 
@@ -88,6 +88,7 @@ class QuadSimulator:
             pattern_start=pattern_start,
             end_step=end_step,
             pos=ref.pos,
+            pos_carry=torch.zeros_like(ref.pos),
             vel=ref.vel,
             quat=quat_from_euler(zero, zero, ref.yaw).squeeze(-2),
             omega=torch.zeros(n, 3, device=self.device),
@@ -98,8 +99,8 @@ class QuadSimulator:
             reward=torch.zeros(n, 1, device=self.device),
             terminated=torch.zeros(n, 1, dtype=torch.bool, device=self.device),
         )
-        state["specific_force"] = (
-            quat_to_rotmat(state["quat"]).transpose(-1, -2) @ torch.tensor([0.0, 0.0, 9.81], device=self.device)
+        state["specific_force"] = rotate_inverse(
+            quat_to_rotmat(state["quat"]), torch.tensor([0.0, 0.0, GRAVITY_M_S2], device=self.device).expand(n, 3)
         )
         state.update({f"wind.{k}": v for k, v in self.atmosphere.init_state(sc).items()})
         state.update({f"sensor.{k}": v for k, v in self.sensors.init_state(sc["sensor_seed"]).items()})
@@ -126,13 +127,12 @@ class QuadSimulator:
         armed = (state["step"] >= self.arm_step).unsqueeze(-1)
         rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
 
-        pos, vel, quat, omega, rotor = state["pos"], state["vel"], state["quat"], state["omega"], state["rotor"]
-        wind = state["wind_total"]
+        body = RigidBody(*(state[k] for k in RigidBody._fields))
         for _ in range(self.cfg.timing.control_substeps):
-            pos, vel, quat, omega, rotor, specific_force = physics_step(
-                pos, vel, quat, omega, rotor, rotor_cmd, wind, self.vehicle, self.cfg.timing.physics_dt_s
+            body, specific_force = physics_step(
+                body, rotor_cmd, state["wind_total"], self.vehicle, self.cfg.timing.physics_dt_s
             )
-        new = dict(state, pos=pos, vel=vel, quat=quat, omega=omega, rotor=rotor, specific_force=specific_force)
+        new = dict(state, specific_force=specific_force, **body._asdict())
         new.update(step=state["step"] + 1, ff=ff, cmd=cmd)
         new = self._observe_instant(new, first=False)
 
@@ -204,6 +204,7 @@ def _sanitize(state: dict[str, Tensor], broken: Tensor) -> dict[str, Tensor]:
     level[..., 0] = 1.0
     fixes = {
         "pos": state["ref_pos"],
+        "pos_carry": torch.zeros_like(state["pos_carry"]),
         "vel": torch.zeros_like(state["vel"]),
         "quat": level,
         "omega": torch.zeros_like(state["omega"]),

@@ -10,7 +10,7 @@ anything.
 
 Timeline of a flight (``t`` from the episode start, ``t_arm`` the arming time):
 
-* horizontal: on the ground until ``t_arm``; a smooth vertical climb at ``climb_rate_m_s`` to the
+* horizontal (and ``hover``, a station-keeping reference for tests): on the ground until ``t_arm``; a smooth vertical climb at ``climb_rate_m_s`` to the
   flight's own altitude (per episode); then the pattern, from hover, at that altitude for
   ``horizontal_duration_s``. The climb is analytic at run time because its length depends on the
   altitude; the pattern comes from the table.
@@ -34,7 +34,10 @@ from ..config import TrajectoryConfig
 
 HORIZONTAL = ("loiter_circle_h", "racetrack_h", "figure8_h", "cloverleaf_h", "lawnmower_h")
 VERTICAL = ("vertical_climb", "spiral_ascent", "figure8_3d", "lawnmower_scan")
-TRAJECTORIES = HORIZONTAL + VERTICAL
+# station keeping at a fixed altitude: not in the paper's libraries; for tests and users
+HOVER = "hover"
+FIXED_ALTITUDE = HORIZONTAL + (HOVER,)
+TRAJECTORIES = HORIZONTAL + VERTICAL + (HOVER,)
 TRAJECTORY_IDS = {name: i for i, name in enumerate(TRAJECTORIES)}
 
 
@@ -168,6 +171,7 @@ def _patterns(cfg: TrajectoryConfig) -> list[_Pattern]:
         vertical(_circle(cfg.spiral_radius_m), False, vv, r[1]),
         vertical(_lemniscate(cfg.figure8_3d_half_length_m), True, vv, r[2]),
         vertical(_raster(cfg.scan_leg_m, cfg.scan_spacing_m, cfg.scan_legs), False, vv, r[3]),
+        _Pattern(_still, False, 0.0, cfg.hover_duration_s),
     ]
 
 
@@ -230,7 +234,7 @@ class Reference:
 
 
 class TrajectoryLibrary:
-    """All nine trajectories, tabulated at the control rate on ``device``.
+    """All trajectories (the paper's nine and ``hover``), tabulated at the control rate on ``device``.
 
     ``schedule`` is called once per episode (at reset) and ``reference`` every control step;
     both are batched over sub-envs with different trajectories and altitudes.
@@ -250,7 +254,8 @@ class TrajectoryLibrary:
         # the pattern holds its last sample past its end (never flown: episodes truncate there)
         self.table = torch.stack(padded).to(torch.float32).to(device)  # [9, T, 14]
         self.pattern_steps = torch.tensor([t.shape[0] for t in tables], dtype=torch.int64, device=device)
-        self.is_horizontal = torch.tensor([i < len(HORIZONTAL) for i in range(len(TRAJECTORIES))], device=device)
+        # fixed-altitude flights climb to their own altitude first; vertical ones climb in the pattern
+        self.fixed_altitude = torch.tensor([name in FIXED_ALTITUDE for name in TRAJECTORIES], device=device)
         self.arm_step = int(round(cfg.arm_time_s / control_dt_s))
         if self.arm_step % align_steps:
             raise ValueError(f"TrajectoryConfig.arm_time_s={cfg.arm_time_s} must fall on the {align_steps}-step log grid")
@@ -263,8 +268,7 @@ class TrajectoryLibrary:
         """``(pattern_start_step, end_step)`` per episode: the control step at which the pattern
         table starts (after arming and, for horizontal flights, the climb) and the step at which
         the flight ends."""
-        horizontal = self.is_horizontal[traj_id]
-        climb_s = torch.where(horizontal, altitude_m / self.cfg.climb_rate_m_s + self.cfg.climb_blend_s, 0.0)
+        climb_s = torch.where(self.fixed_altitude[traj_id], altitude_m / self.cfg.climb_rate_m_s + self.cfg.climb_blend_s, 0.0)
         start = self.arm_step + torch.ceil(climb_s / self.dt).to(torch.int64)
         start = (start + self.align_steps - 1) // self.align_steps * self.align_steps
         return start, start + self.pattern_steps[traj_id]
@@ -273,9 +277,8 @@ class TrajectoryLibrary:
         """The reference at control step ``step`` (all ``[N]``)."""
         row = (step - pattern_start).clamp(0, self.table.shape[1] - 1)
         entry = self.table[traj_id, row]  # [N, 14]
-        horizontal = self.is_horizontal[traj_id]
         t_climb = (step - self.arm_step).to(torch.float32) * self.dt
-        height = torch.where(horizontal, altitude_m, 0.0)
+        height = torch.where(self.fixed_altitude[traj_id], altitude_m, 0.0)
         z, vz, az, jz = climb_profile(t_climb, height, self.cfg.climb_rate_m_s, self.cfg.climb_blend_s)
         climb = torch.stack((z, vz, az, jz), -1)  # [N, 4]
         zero = torch.zeros_like(climb[..., :1])

@@ -1,0 +1,234 @@
+"""QuadWindEnv and the PD cascade: force balances by hand, replay, partial resets, specs."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from tensordict import TensorDict
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.envs.utils import check_env_specs
+
+from quadwind_trl.config import GRAVITY_M_S2, EnvConfig, VehicleConfig
+from quadwind_trl.envs import TRAJECTORIES, QuadWindEnv, make_scenarios
+from quadwind_trl.envs.rotations import quat_to_rotmat
+from quadwind_trl.envs.runner import fly
+from quadwind_trl.envs.simulator import QuadSimulator
+
+from conftest import quiet_config, short_trajectories, windy_config
+
+VEH = VehicleConfig()
+HALF_RHO = 0.5 * VEH.air_density_kg_m3
+
+
+def _hover_sim(cfg: EnvConfig, n: int = 1, **scenario):
+    sim = QuadSimulator(cfg)
+    sc = make_scenarios(n, traj_id="hover", altitude_m=50.0, start_step=-1, shear_alpha=0.0, **scenario)
+    return sim, sim.reset(None, sc)
+
+
+def _run(sim: QuadSimulator, state, seconds: float, action=None):
+    action = torch.zeros(state["pos"].shape[0], 4) if action is None else action
+    for _ in range(round(seconds / sim.control_dt)):
+        state = sim.step(state, action)
+    return state
+
+
+def test_hover_in_still_air():
+    sim, state = _hover_sim(quiet_config())
+    start = state["pos"].clone()
+    state = _run(sim, state, 10.0)
+    hover_speed = math.sqrt(VEH.mass_kg * GRAVITY_M_S2 / (4 * VEH.thrust_coeff))
+    assert torch.allclose(state["rotor"], torch.full((1, 4), hover_speed), rtol=5e-3)
+    assert (state["pos"] - start).norm() < 0.01
+
+
+def _drag_components(airspeed: float, tilt: float) -> tuple[float, float]:
+    """World-frame drag (downwind, up) on a vehicle pitched ``tilt`` into a wind of ``airspeed``,
+    from the body-axis quadratic drag: body x sees airspeed cos(tilt), body z airspeed sin(tilt)."""
+    q = HALF_RHO * airspeed**2
+    c, s = math.cos(tilt), math.sin(tilt)
+    along = q * (VEH.drag_area_xy_m2 * c**3 + VEH.drag_area_z_m2 * s**3)
+    up = q * (VEH.drag_area_xy_m2 * c * c * s - VEH.drag_area_z_m2 * s * s * c)
+    return along, up
+
+
+def test_steady_wind_offset_matches_force_balance():
+    """In a steady 8 m/s wind the PD (no integral action) settles where its restoring force
+    balances the drag: tilt from tan(t) = D_x / (m g - D_z), offsets D / (m Kp)."""
+    wind = 8.0
+    sim, state = _hover_sim(windy_config(), wind_speed_ref_m_s=wind, wind_dir_deg=270.0)  # from the west
+    ref = state["ref_pos"].clone()
+    state = _run(sim, state, 25.0)
+    weight = VEH.mass_kg * GRAVITY_M_S2
+    tilt = 0.0
+    for _ in range(100):
+        along, up = _drag_components(wind, tilt)
+        tilt = math.atan(along / (weight - up))
+    along, up = _drag_components(wind, tilt)
+    kp = sim.cfg.controller.kp_pos
+    offset = state["pos"] - ref
+    rot = quat_to_rotmat(state["quat"])
+    sim_tilt = math.acos(rot[0, 2, 2].item())
+    assert abs(sim_tilt - tilt) < 0.02 * tilt
+    assert abs(offset[0, 0].item() - along / (VEH.mass_kg * kp[0])) < 0.02 * along / (VEH.mass_kg * kp[0])
+    assert abs(offset[0, 2].item() - up / (VEH.mass_kg * kp[2])) < 0.02 * abs(up / (VEH.mass_kg * kp[2]))
+    assert abs(offset[0, 1].item()) < 1e-3
+    assert rot[0, 0, 2].item() < 0  # the thrust axis leans upwind (towards -x)
+
+
+def test_tilt_limit_saturates_and_the_vehicle_is_blown_away():
+    """Beyond the critical airspeed the tilt limit binds: the PD cannot hold position and the
+    vehicle drifts downwind at the wind speed minus the airspeed its 35-degree tilt can hold."""
+    wind = 40.0
+    sim, state = _hover_sim(windy_config(cap_m_s=60.0), wind_speed_ref_m_s=wind, wind_dir_deg=270.0)
+    state = _run(sim, state, 30.0)
+    max_tilt = math.radians(35.0)
+    weight = VEH.mass_kg * GRAVITY_M_S2
+    # (m g - D_z(v)) tan(35) = D_x(v), both quadratic in v: solve for v^2
+    along1, up1 = _drag_components(1.0, max_tilt)
+    critical = math.sqrt(weight * math.tan(max_tilt) / (along1 + up1 * math.tan(max_tilt)))
+    assert state["tilt_saturated"].all()
+    assert abs(state["tilt_cmd"].item() - max_tilt) < 1e-5
+    drift = state["vel"][0, 0].item()
+    assert abs(drift - (wind - critical)) < 0.02 * (wind - critical), (drift, wind - critical)
+    assert state["pos"][0, 0].item() - state["ref_pos"][0, 0].item() > 50.0  # long gone
+
+
+def test_zero_residual_policy_reproduces_pd_bit_for_bit():
+    cfg = EnvConfig(trajectories=short_trajectories())
+    env = QuadWindEnv(cfg, batch_size=[3])
+    sc = make_scenarios(
+        3, traj_id=["figure8_h", "spiral_ascent", "lawnmower_h"], altitude_m=30.0, wind_speed_ref_m_s=7.0,
+        turb_intensity=0.2, turb_seed=torch.tensor([1, 2, 3]), sensor_seed=torch.tensor([4, 5, 6]),
+    )
+    pd = fly(env, sc)
+    head = nn.Linear(16, 4)
+    nn.init.zeros_(head.weight)
+    nn.init.zeros_(head.bias)
+    policy = TensorDictModule(nn.Sequential(head, nn.Tanh()), in_keys=["meas"], out_keys=["action"])
+    rl = fly(env, sc, policy=policy)
+    assert torch.equal(pd.log["meas"], rl.log["meas"])
+    assert torch.equal(pd.log["truth", "pos"], rl.log["truth", "pos"])
+    assert torch.equal(pd.rmse_xy, rl.rmse_xy)
+    # and a non-zero policy does change the flight
+    nn.init.constant_(head.bias, 0.05)
+    other = fly(env, sc, policy=policy)
+    assert not torch.equal(pd.log["truth", "pos"], other.log["truth", "pos"])
+
+
+def _stepped(env: QuadWindEnv, scenarios, steps: int, action_fn=None):
+    td = env.reset(scenario=scenarios)
+    record = []
+    for k in range(steps):
+        td["action"] = torch.zeros(env.batch_size[0], 4) if action_fn is None else action_fn(k)
+        td = env.step(td)["next"]
+        record.append(td.select("meas", ("truth", "pos"), ("truth", "wind"), "step").clone())
+    return torch.stack(record, 1)
+
+
+def test_replay_is_independent_of_batch_and_row():
+    cfg = EnvConfig(trajectories=short_trajectories())
+    spec = make_scenarios(
+        1, traj_id="racetrack_h", altitude_m=40.0, wind_speed_ref_m_s=9.0, turb_intensity=0.25,
+        turb_seed=77, sensor_seed=78, wind_dir_deg=123.0,
+    )
+    alone = _stepped(QuadWindEnv(cfg, batch_size=[1]), spec, 400)
+    others = make_scenarios(
+        64, traj_id=torch.arange(64) % 9, altitude_m=60.0, wind_speed_ref_m_s=torch.linspace(0, 12, 64),
+        turb_intensity=0.2, turb_seed=torch.arange(64) + 1000, sensor_seed=torch.arange(64) + 2000,
+    )
+    others[37] = spec[0]
+    batched = _stepped(QuadWindEnv(cfg, batch_size=[64]), others, 400)[37:38]
+    # equal to float32 rounding: ATen's vectorised log/cos round tail elements with scalar code,
+    # so a row's last bit can depend on where it sits in memory (bitwise for the same layout)
+    torch.testing.assert_close(batched["truth", "pos"], alone["truth", "pos"], rtol=1e-6, atol=1e-5)
+    torch.testing.assert_close(batched["truth", "wind"], alone["truth", "wind"], rtol=1e-6, atol=1e-5)
+    torch.testing.assert_close(batched["meas"], alone["meas"], rtol=1e-6, atol=1e-5)
+    again = _stepped(QuadWindEnv(cfg, batch_size=[64]), others, 400)[37:38]
+    assert torch.equal(again["truth", "pos"], batched["truth", "pos"]) and torch.equal(again["meas"], batched["meas"])
+
+
+def test_replay_under_another_controller_sees_the_same_world():
+    """Another controller flies elsewhere, but the episode's world is the same: the initial
+    state, the turbulence field and every sensor's noise and bias sequence."""
+    cfg = EnvConfig(trajectories=short_trajectories())
+    spec = make_scenarios(
+        1, traj_id="loiter_circle_h", altitude_m=30.0, wind_speed_ref_m_s=6.0, turb_intensity=0.2,
+        turb_seed=5, sensor_seed=6,
+    )
+    env_a, env_b = QuadWindEnv(cfg, batch_size=[1]), QuadWindEnv(cfg, batch_size=[1])
+    a = _stepped(env_a, spec, 300)
+    gen = torch.Generator().manual_seed(0)
+    b = _stepped(env_b, spec, 300, action_fn=lambda k: torch.rand(1, 4, generator=gen) * 2 - 1)
+    assert not torch.allclose(a["truth", "pos"][:, -1], b["truth", "pos"][:, -1])
+    sa, sb = env_a.state, env_b.state
+    for key in ("wind.phase", "wind.rotation", "wind.amplitude", "wind.k_scale", "sensor.bias"):
+        assert torch.equal(sa[key], sb[key]), key
+    probe = torch.tensor([[10.0, -20.0, 30.0]])
+    wa = env_a.sim.atmosphere.isotropic_turbulence({k[5:]: v for k, v in sa.items() if k.startswith("wind.")}, probe)
+    wb = env_b.sim.atmosphere.isotropic_turbulence({k[5:]: v for k, v in sb.items() if k.startswith("wind.")}, probe)
+    assert torch.equal(wa, wb)
+
+
+def test_partial_reset_touches_only_masked_rows():
+    env = QuadWindEnv(batch_size=[4])
+    sc = make_scenarios(4, traj_id=[0, 1, 2, 3], altitude_m=20.0, wind_speed_ref_m_s=5.0, turb_intensity=0.1,
+                        turb_seed=torch.arange(4), sensor_seed=torch.arange(4))
+    td = env.reset(scenario=sc)
+    for _ in range(50):
+        td["action"] = torch.rand(4, 4) * 2 - 1
+        td = env.step(td)["next"]
+    before = {k: v.clone() for k, v in env.state.items()}
+    fresh = make_scenarios(4, traj_id=[5, 6, 7, 8], turb_seed=torch.arange(4) + 10, sensor_seed=torch.arange(4) + 20)
+    mask = torch.tensor([[True], [False], [False], [True]])
+    out = env.reset(TensorDict(_reset=mask, batch_size=[4]), scenario=fresh)
+    reference = QuadWindEnv(batch_size=[4])
+    reference.reset(scenario=fresh)
+    for key, value in env.state.items():
+        assert torch.equal(value[1:3], before[key][1:3]), key
+        assert torch.equal(value[[0, 3]], reference.state[key][[0, 3]]), key
+    assert torch.equal(out["step"][[0, 3]], torch.zeros(2, 1, dtype=torch.int64))
+
+
+def test_check_env_specs_and_rollout_shapes():
+    env = QuadWindEnv(batch_size=[3])
+    check_env_specs(env)
+    r = env.rollout(5, break_when_any_done=False)
+    assert r.batch_size == torch.Size([3, 5])
+    assert r["next", "reward"].shape == (3, 5, 1) and r["next", "done"].dtype == torch.bool
+
+
+def test_bad_config_fails_with_the_field_name():
+    from dataclasses import replace
+
+    from quadwind_trl.config import ControllerConfig
+
+    with pytest.raises(ValueError, match="max_tilt_deg"):
+        QuadWindEnv(replace(EnvConfig(), controller=ControllerConfig(max_tilt_deg=120.0)))
+    with pytest.raises(KeyError, match="unknown scenario fields"):
+        make_scenarios(1, wind_speed=3.0)
+
+
+def test_pd_tracks_every_trajectory_in_still_air():
+    """Centimetre tracking without wind: what is left is the drag-induced lag of a PD without
+    integral action (about 11 cm at 8 m/s: 1/2 rho CdA v^2 / (m Kp))."""
+    cfg = quiet_config(trajectories=short_trajectories())
+    env = QuadWindEnv(cfg, batch_size=[len(TRAJECTORIES)])
+    sc = make_scenarios(len(TRAJECTORIES), traj_id=list(range(len(TRAJECTORIES))), altitude_m=20.0)
+    res = fly(env, sc)
+    assert not res.crashed.any()
+    drag_lag = HALF_RHO * VEH.drag_area_xy_m2 * cfg.trajectories.cruise_speed_m_s**2 / (VEH.mass_kg * 5.0)
+    assert (res.rmse < 0.2).all(), dict(zip(TRAJECTORIES, res.rmse.tolist()))
+    assert res.rmse[0] > 0.5 * drag_lag  # the loiter circle shows the lag
+
+
+def test_compiled_step_matches_eager():
+    cfg = EnvConfig(trajectories=short_trajectories())
+    sc = make_scenarios(2, traj_id=[1, 7], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
+                        turb_seed=torch.tensor([3, 4]), sensor_seed=torch.tensor([5, 6]))
+    eager = _stepped(QuadWindEnv(cfg, batch_size=[2]), sc, 60)
+    compiled = _stepped(QuadWindEnv(cfg, batch_size=[2], compile_step=True), sc, 60)
+    torch.testing.assert_close(compiled["truth", "pos"], eager["truth", "pos"], rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(compiled["meas"], eager["meas"], rtol=1e-5, atol=1e-4)
