@@ -1,0 +1,305 @@
+"""Estimator input features: one incremental, batched, stateful code path for the dataset and the
+online transform (DESIGN.md invariant 3).
+
+A :class:`FeatureExtractor` consumes the raw flight record one 10 Hz tick at a time::
+
+    fx = FeatureExtractor("horizontal")            # or "vertical"
+    state = fx.init_state(batch=N, device=dev)
+    state, f_t = fx.step(state, record_t)          # record_t: {key: [N, ...]} for key in fx.raw_keys
+    state = fx.reset_rows(state, mask)             # restart the rows of a bool [N] mask
+
+``step`` is pure: it never mutates ``state`` or ``record_t`` and returns a new state. The offline
+helper :meth:`FeatureExtractor.scan` runs exactly the same ``step`` over the time axis of an
+``[n, T]`` record (batched over flights, a Python loop over T only), so dataset features and
+online features are the same numbers (``tests/test_features.py`` checks them bit for bit).
+
+The raw record (``RAW_RECORD_KEYS``, all of them observation keys of ``QuadWindEnv``):
+
+=================  ====  ==========================================================================
+key                size  content
+=================  ====  ==========================================================================
+``meas``           16    sensor channels, ``quadwind_trl.envs.sensors.SENSOR_CHANNELS`` order
+``cmd_wrench``     4     commanded collective thrust ``u_T`` (N), body torques (N m), last step
+``tilt_cmd``       1     PD commanded tilt from vertical (rad)
+``tilt_saturated`` 1     bool, the PD tilt limit was active
+``ref_pos``        3     reference position, world ENU (m)
+``ref_yaw``        1     reference heading (rad, continuous/unwrapped, from east, CCW)
+=================  ====  ==========================================================================
+
+Channel definitions, units and the choices made where the paper is ambiguous are in
+``docs/features.md``; the channel names are ``HORIZONTAL_CHANNELS`` (48) and
+``VERTICAL_CHANNELS`` (22).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal, Mapping
+
+import torch
+from torch import Tensor
+
+from ..config import GRAVITY_M_S2, EnvConfig
+from ..envs.sensors import SENSOR_CHANNELS
+
+Schema = Literal["horizontal", "vertical"]
+YawMode = Literal["ref_relative", "wrapped"]
+
+#: everything any schema reads from the flight record / env observation, in one list
+RAW_RECORD_KEYS: tuple[str, ...] = ("meas", "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
+RAW_RECORD_SIZES: dict[str, int] = {"meas": len(SENSOR_CHANNELS), "cmd_wrench": 4, "tilt_cmd": 1, "tilt_saturated": 1, "ref_pos": 3, "ref_yaw": 1}
+RAW_KEYS_BY_SCHEMA: dict[str, tuple[str, ...]] = {
+    "horizontal": ("meas", "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_yaw"),
+    "vertical": ("meas", "ref_pos", "ref_yaw"),
+}
+
+_M = {name: i for i, name in enumerate(SENSOR_CHANNELS)}
+
+LOG_DT_S = 0.1  # the 10 Hz record
+TRAILING_WINDOWS: tuple[int, int] = (100, 300)  # paper: 10 s and 30 s at 10 Hz
+
+
+def kinematic_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
+    """The 13 controller-agnostic kinematic channels of sensor17 (shared by both schemas)."""
+    yaw = "yaw_err" if yaw_mode == "ref_relative" else "yaw"
+    return (
+        "alt",
+        "vel_E", "vel_N", "vel_U",
+        "acc_bx", "acc_by", "acc_bz",
+        "roll", "pitch", yaw,
+        "rate_p", "rate_q", "rate_r",
+    )  # fmt: skip
+
+
+#: the 11 signals whose causal trailing means are taken (paper: horizontal velocities and
+#: accelerations, the four aero components, roll and pitch, commanded thrust)
+TRAILING_SIGNALS: tuple[str, ...] = (
+    "vel_N", "vel_E", "acc_N", "acc_E", "aero_N", "aero_E", "aero_U", "aero_horiz", "roll", "pitch", "u_T",
+)  # fmt: skip
+
+
+def horizontal_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
+    return (
+        kinematic_channels(yaw_mode)
+        + ("u_T", "tau_x", "tau_y", "tau_z")  # 17: sensor17
+        + ("sf_bx", "sf_by", "sf_bz")  # 20: raw accelerometer
+        + ("aero_N", "aero_E", "aero_U", "aero_horiz", "tilt_cmd", "tilt_sat")  # 26
+        + tuple(f"avg{w}_{s}" for w in TRAILING_WINDOWS for s in TRAILING_SIGNALS)  # 48
+    )
+
+
+def vertical_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
+    return kinematic_channels(yaw_mode) + (
+        "dX", "dY", "dZ",
+        "vx_ref", "vy_ref", "vz_ref",
+        "ax_ref", "ay_ref", "az_ref",
+    )  # fmt: skip
+
+
+HORIZONTAL_CHANNELS = horizontal_channels()
+VERTICAL_CHANNELS = vertical_channels()
+assert len(HORIZONTAL_CHANNELS) == 48 and len(set(HORIZONTAL_CHANNELS)) == 48
+assert len(VERTICAL_CHANNELS) == 22 and len(set(VERTICAL_CHANNELS)) == 22
+
+
+def wrap_angle(x: Tensor) -> Tensor:
+    """Wrap to ``[-pi, pi)`` by ``remainder`` (elementwise exact arithmetic: unlike ``atan2``, its
+    result does not depend on the batch layout, which keeps online and offline bit-identical)."""
+    return torch.remainder(x + math.pi, 2.0 * math.pi) - math.pi
+
+
+def rotation_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> tuple[tuple[Tensor, Tensor, Tensor], ...]:
+    """Z-Y-X body-to-world rotation ``R = Rz(yaw) Ry(pitch) Rx(roll)`` as nested rows of ``[N]``
+    tensors (elementwise arithmetic only: no matmul, so no batch-size-dependent reductions)."""
+    sr, cr = torch.sin(roll), torch.cos(roll)
+    sp, cp = torch.sin(pitch), torch.cos(pitch)
+    sy, cy = torch.sin(yaw), torch.cos(yaw)
+    return (
+        (cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr),
+        (sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr),
+        (-sp, cp * sr, cp * cr),
+    )
+
+
+def _apply(r, v: tuple[Tensor, Tensor, Tensor]) -> tuple[Tensor, Tensor, Tensor]:
+    return tuple(row[0] * v[0] + row[1] * v[1] + row[2] * v[2] for row in r)  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class FeatureExtractor:
+    """Incremental feature extractor for one schema (``"horizontal"``, 48 channels, or
+    ``"vertical"``, 22 channels).
+
+    ``mass_kg`` converts the specific-force residual to the aerodynamic force (N); ``yaw_mode``
+    picks the third Euler channel: ``"ref_relative"`` (default, ``yaw_err`` = measured yaw minus
+    the reference heading, wrapped) or ``"wrapped"`` (the paper-literal raw yaw in ``[-pi, pi)``);
+    see docs/features.md for why the default is not the raw yaw.
+    """
+
+    schema: Schema = "horizontal"
+    mass_kg: float = 2.59
+    gravity_m_s2: float = GRAVITY_M_S2
+    log_dt_s: float = LOG_DT_S
+    windows: tuple[int, int] = TRAILING_WINDOWS
+    yaw_mode: YawMode = "ref_relative"
+
+    def __post_init__(self):
+        if self.schema not in ("horizontal", "vertical"):
+            raise ValueError(f"FeatureExtractor.schema={self.schema!r}; allowed: 'horizontal', 'vertical'")
+        if self.yaw_mode not in ("ref_relative", "wrapped"):
+            raise ValueError(f"FeatureExtractor.yaw_mode={self.yaw_mode!r}; allowed: 'ref_relative', 'wrapped'")
+        if not (0 < self.windows[0] <= self.windows[1]):
+            raise ValueError(f"FeatureExtractor.windows={self.windows!r} must be increasing and positive")
+
+    @classmethod
+    def from_config(cls, schema: Schema, config: EnvConfig | None = None, **kwargs) -> "FeatureExtractor":
+        cfg = config or EnvConfig()
+        return cls(schema=schema, mass_kg=cfg.vehicle.mass_kg, log_dt_s=cfg.timing.log_dt_s, **kwargs)
+
+    # --- schema ---------------------------------------------------------------------------------
+
+    @property
+    def channels(self) -> tuple[str, ...]:
+        if self.schema == "horizontal":
+            names = kinematic_channels(self.yaw_mode) + horizontal_channels(self.yaw_mode)[13:26]
+            return names + tuple(f"avg{w}_{s}" for w in self.windows for s in TRAILING_SIGNALS)
+        return vertical_channels(self.yaw_mode)
+
+    @property
+    def num_channels(self) -> int:
+        return len(self.channels)
+
+    @property
+    def raw_keys(self) -> tuple[str, ...]:
+        return RAW_KEYS_BY_SCHEMA[self.schema]
+
+    # --- state ----------------------------------------------------------------------------------
+
+    def init_state(self, batch: int, device: torch.device | str | None = None) -> dict:
+        """The state before a flight's first sample, for ``batch`` rows."""
+        count = torch.zeros(batch, dtype=torch.int64, device=device)
+        if self.schema == "vertical":
+            z3 = torch.zeros(batch, 3, device=device)
+            return {"count": count, "prev_ref_pos": z3, "prev_ref_vel": z3}
+        k = len(TRAILING_SIGNALS)
+        zero = torch.zeros(batch, k, device=device)
+        sums = torch.zeros(batch, k, dtype=torch.float64, device=device)
+        # history[-j] is the trailing-signal sample j ticks before the current one; a tuple of
+        # tensors (shifted by reference, never copied or mutated) keeps ``step`` pure and O(1)
+        return {"count": count, "sum_short": sums, "sum_long": sums, "history": (zero,) * self.windows[1]}
+
+    def reset_rows(self, state: dict, mask: Tensor) -> dict:
+        """Restart the rows of bool ``mask`` ``[N]`` (their next sample is a flight's first)."""
+        mask = mask.reshape(-1)
+        out = dict(state)
+        out["count"] = torch.where(mask, 0, state["count"])
+        m = mask.unsqueeze(-1)
+        for key in ("sum_short", "sum_long", "prev_ref_pos", "prev_ref_vel"):
+            if key in state:
+                out[key] = torch.where(m, torch.zeros_like(state[key]), state[key])
+        # history rows need no reset: samples from before the restart are masked by ``count``
+        return out
+
+    # --- one tick -------------------------------------------------------------------------------
+
+    def step(self, state: dict, record: Mapping[str, Tensor]) -> tuple[dict, Tensor]:
+        """Consume one 10 Hz sample per row; returns ``(new_state, features [N, C] float32)``."""
+        meas = record["meas"].to(torch.float32)
+        g = self.gravity_m_s2
+        roll, pitch, yaw = meas[..., _M["roll"]], meas[..., _M["pitch"]], meas[..., _M["yaw"]]
+        r = rotation_from_euler(roll, pitch, yaw)
+        sf_b = (meas[..., _M["accel_x"]], meas[..., _M["accel_y"]], meas[..., _M["accel_z"]])
+        # kinematic body acceleration a_b = f_b + R^T (0, 0, -g); R^T e_z is R's third row
+        acc_b = tuple(f - g * r[2][i] for i, f in enumerate(sf_b))
+        if self.yaw_mode == "ref_relative":
+            yaw_ch = wrap_angle(yaw - record["ref_yaw"][..., 0].to(torch.float32))
+        else:
+            yaw_ch = wrap_angle(yaw)
+        kin = [
+            meas[..., _M["baro_alt"]],
+            meas[..., _M["gps_vx"]], meas[..., _M["gps_vy"]], meas[..., _M["gps_vz"]],
+            *acc_b,
+            roll, pitch, yaw_ch,
+            meas[..., _M["gyro_x"]], meas[..., _M["gyro_y"]], meas[..., _M["gyro_z"]],
+        ]  # fmt: skip
+        count = state["count"] + 1
+        if self.schema == "vertical":
+            return self._vertical(state, record, meas, kin, count)
+        return self._horizontal(state, record, kin, r, sf_b, count)
+
+    def _horizontal(self, state, record, kin, r, sf_b, count) -> tuple[dict, Tensor]:
+        cmd = record["cmd_wrench"].to(torch.float32)
+        u_t = cmd[..., 0]
+        m, g = self.mass_kg, self.gravity_m_s2
+        f_w = _apply(r, sf_b)  # realised specific force, world ENU
+        b3 = (r[0][2], r[1][2], r[2][2])  # measured body z axis in world
+        aero_e, aero_n, aero_u = (m * f - u_t * b for f, b in zip(f_w, b3))  # N
+        aero_h = torch.sqrt(aero_n * aero_n + aero_e * aero_e)
+        acc_e, acc_n = f_w[0], f_w[1]  # world kinematic horizontal acceleration (gravity is vertical)
+        tilt = record["tilt_cmd"][..., 0].to(torch.float32)
+        sat = record["tilt_saturated"][..., 0].to(torch.float32)
+
+        x = torch.stack(
+            (kin[2], kin[1], acc_n, acc_e, aero_n, aero_e, aero_u, aero_h, kin[7], kin[8], u_t), -1
+        )  # TRAILING_SIGNALS order
+        hist = state["history"]
+        w_short, w_long = self.windows
+        prev = state["count"].unsqueeze(-1)
+        xd = x.to(torch.float64)
+        out_short = torch.where(prev >= w_short, hist[-w_short].to(torch.float64), 0.0)
+        out_long = torch.where(prev >= w_long, hist[-w_long].to(torch.float64), 0.0)
+        sum_short = state["sum_short"] + xd - out_short
+        sum_long = state["sum_long"] + xd - out_long
+        c = count.unsqueeze(-1).to(torch.float64)
+        avg_short = (sum_short / c.clamp_max(w_short)).to(torch.float32)
+        avg_long = (sum_long / c.clamp_max(w_long)).to(torch.float32)
+
+        inst = torch.stack(
+            kin + [cmd[..., 0], cmd[..., 1], cmd[..., 2], cmd[..., 3], *sf_b, aero_n, aero_e, aero_u, aero_h, tilt, sat], -1
+        )
+        feats = torch.cat((inst, avg_short, avg_long), -1)
+        new = {"count": count, "sum_short": sum_short, "sum_long": sum_long, "history": hist[1:] + (x,)}
+        return new, feats
+
+    def _vertical(self, state, record, meas, kin, count) -> tuple[dict, Tensor]:
+        ref = record["ref_pos"].to(torch.float32)
+        measured = torch.stack((meas[..., _M["gps_x"]], meas[..., _M["gps_y"]], meas[..., _M["baro_alt"]]), -1)
+        d = measured - ref
+        started = (state["count"] > 0).unsqueeze(-1)
+        # causal backward differences of the reference position on the 10 Hz grid; zero at a
+        # flight's first sample (flights start at rest)
+        v_ref = torch.where(started, (ref - state["prev_ref_pos"]) / self.log_dt_s, 0.0)
+        a_ref = torch.where(started, (v_ref - state["prev_ref_vel"]) / self.log_dt_s, 0.0)
+        feats = torch.cat((torch.stack(kin, -1), d, v_ref, a_ref), -1)
+        return {"count": count, "prev_ref_pos": ref, "prev_ref_vel": v_ref}, feats
+
+    # --- offline --------------------------------------------------------------------------------
+
+    def scan(self, record: Mapping[str, Tensor], out: Tensor | None = None, progress: bool = False) -> Tensor:
+        """Features ``[n, T, C]`` of ``n`` flights' records ``{key: [n, T, ...]}`` (each row starts
+        at its flight's first sample): :meth:`step` over the time axis, batched over flights.
+
+        ``out`` (e.g. a slice of a memory-mapped tensor) receives the result if given.
+        """
+        first = record[self.raw_keys[0]]
+        n, t_len = first.shape[:2]
+        device = first.device
+        # time-major contiguous copies: each tick's input is laid out exactly as online
+        series = {k: record[k].transpose(0, 1).contiguous() for k in self.raw_keys}
+        if out is None:
+            out = torch.empty(n, t_len, self.num_channels, dtype=torch.float32, device=device)
+        state = self.init_state(n, device)
+        ticks = range(t_len)
+        if progress:
+            from tqdm.auto import tqdm
+
+            ticks = tqdm(ticks, desc=f"{self.schema} features", unit="tick")
+        for t in ticks:
+            state, f = self.step(state, {k: v[t] for k, v in series.items()})
+            out[:, t] = f
+        return out
+
+
+def make_extractor(schema: Schema, config: EnvConfig | None = None, **kwargs) -> FeatureExtractor:
+    """The extractor for ``schema`` with the vehicle mass and log rate of ``config``."""
+    return FeatureExtractor.from_config(schema, config, **kwargs)

@@ -1,0 +1,322 @@
+"""Flight-log datasets: LHS wind cases x trajectories, flown by the PD baseline, stored as
+memory-mapped tensordicts.
+
+A dataset is one directory::
+
+    DIR/
+      data/               TensorDict.memmap_ of batch [n] (one row per flight):
+        record/           [n, T] 10 Hz record: raw channels (features.RAW_RECORD_KEYS), "step",
+                          labels "mean_wind_ne" [2] (north, east), truth "wind" [3] (total air
+                          velocity, ENU), "pos" [3] (true position, ENU), "valid" (bool)
+        scenario/         [n] every SCENARIO_FIELDS entry (replays the flight exactly)
+        case_id, traj_id, length, pattern_start_step, end_step, rmse_xy, rmse_z, crashed
+      manifest.json       regime, seeds, sizes, trajectory names, full EnvConfig and RegimeRanges
+                          (deterministic: no timestamps)
+      provenance.json     command, git commit, wall time, host threads (differs between runs)
+      COMPLETE            written last: a dataset without it is never loaded
+
+Generation writes into ``.<name>.partial-<pid>`` beside ``DIR`` and renames it into place only
+when everything, ``COMPLETE`` included, is written, so an interrupted run never leaves anything
+that :func:`load_dataset` accepts. Same arguments => byte-identical ``data/`` and
+``manifest.json`` (the physics is a function of the scenarios; the scenarios of the seeds).
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Literal
+
+import torch
+from tensordict import TensorDict
+
+from ..config import EnvConfig, TrajectoryConfig, config_to_dict
+from ..envs.quad_env import QuadWindEnv
+from ..envs.runner import iter_flights
+from ..envs.scenarios import SCENARIO_FIELDS, RegimeRanges, cross_with_trajectories, sample_regimes
+from ..envs.trajectories import HORIZONTAL, TRAJECTORIES, VERTICAL
+from .features import RAW_RECORD_KEYS, RAW_RECORD_SIZES
+
+Regime = Literal["horizontal", "vertical"]
+
+COMPLETE_MARKER = "COMPLETE"
+FORMAT_VERSION = 1
+
+#: what the runner logs (env observation keys) -> the name stored in ``record``
+LOG_KEYS: tuple = RAW_RECORD_KEYS + ("step", ("truth", "pos"), ("truth", "wind"), ("truth", "mean_wind"))
+
+
+@dataclass(frozen=True)
+class GenerationSpec:
+    """Everything that defines a dataset's content."""
+
+    regime: Regime = "horizontal"
+    cases: int = 1000  # paper: 1000 wind cases per regime
+    seed: int = 0  # LHS design seed (turbulence and sensor seeds derive from it per case)
+    config: EnvConfig = field(default_factory=EnvConfig)
+    ranges: RegimeRanges | None = None  # None: RegimeRanges() horizontal, altitude_m=None vertical
+
+    def __post_init__(self):
+        if self.regime not in ("horizontal", "vertical"):
+            raise ValueError(f"GenerationSpec.regime={self.regime!r}; allowed: 'horizontal', 'vertical'")
+        if self.cases < 1:
+            raise ValueError(f"GenerationSpec.cases={self.cases} must be >= 1")
+
+    @property
+    def trajectories(self) -> tuple[str, ...]:
+        return HORIZONTAL if self.regime == "horizontal" else VERTICAL
+
+    @property
+    def regime_ranges(self) -> RegimeRanges:
+        if self.ranges is not None:
+            return self.ranges
+        return RegimeRanges() if self.regime == "horizontal" else RegimeRanges(altitude_m=None)
+
+    def scenarios(self) -> TensorDict:
+        """``cases x trajectories`` scenarios, case-major, with ``case_id``."""
+        ranges = self.regime_ranges
+        if (ranges.altitude_m is None) != (self.regime == "vertical"):
+            raise ValueError(
+                f"RegimeRanges.altitude_m={ranges.altitude_m!r} does not fit the {self.regime} regime "
+                "(vertical designs take altitude_m=None, horizontal ones a range)"
+            )
+        return cross_with_trajectories(sample_regimes(self.cases, ranges, self.seed), self.trajectories)
+
+
+def quick_spec(regime: Regime, seed: int = 0, cases: int = 3) -> tuple[GenerationSpec, list[str]]:
+    """A tiny dataset for smoke tests: few cases, short flights. Returns the spec and a list of
+    human-readable lines saying what differs from the paper-size dataset."""
+    traj = replace(TrajectoryConfig(), horizontal_duration_s=15.0, vertical_top_m=20.0)
+    cfg = replace(EnvConfig(), trajectories=traj)
+    changes = [
+        f"cases: 1000 -> {cases}",
+        f"TrajectoryConfig.horizontal_duration_s: {TrajectoryConfig.horizontal_duration_s} -> {traj.horizontal_duration_s}",
+        f"TrajectoryConfig.vertical_top_m: {TrajectoryConfig.vertical_top_m} -> {traj.vertical_top_m}",
+    ]
+    ranges = None
+    if regime == "horizontal":
+        ranges = RegimeRanges(altitude_m=(15.0, 25.0))
+        changes.append(f"RegimeRanges.altitude_m: {RegimeRanges.altitude_m} -> {ranges.altitude_m}")
+    return GenerationSpec(regime=regime, cases=cases, seed=seed, config=cfg, ranges=ranges), changes
+
+
+def _record_template(n: int, t_len: int) -> TensorDict:
+    """Zero-storage (expanded) template of the dataset layout, for ``memmap_like``."""
+
+    def z(*shape, dtype=torch.float32):
+        return torch.zeros((1,) * len(shape), dtype=dtype).expand(*shape)
+
+    rec = {k: z(n, t_len, RAW_RECORD_SIZES[k]) for k in RAW_RECORD_KEYS}
+    rec["tilt_saturated"] = z(n, t_len, 1, dtype=torch.bool)
+    rec.update(
+        step=z(n, t_len, 1, dtype=torch.int64),
+        pos=z(n, t_len, 3),
+        wind=z(n, t_len, 3),
+        mean_wind_ne=z(n, t_len, 2),
+        valid=z(n, t_len, dtype=torch.bool),
+    )
+    scenario = {k: z(n, dtype=dtype) for k, (dtype, _) in SCENARIO_FIELDS.items()}
+    return TensorDict(
+        {
+            "record": TensorDict(rec, batch_size=[n, t_len]),
+            "scenario": TensorDict(scenario, batch_size=[n]),
+            "case_id": z(n, dtype=torch.int64),
+            "traj_id": z(n, dtype=torch.int64),
+            "length": z(n, dtype=torch.int64),
+            "pattern_start_step": z(n, dtype=torch.int64),
+            "end_step": z(n, dtype=torch.int64),
+            "rmse_xy": z(n),
+            "rmse_z": z(n),
+            "crashed": z(n, dtype=torch.bool),
+        },
+        batch_size=[n],
+    )
+
+
+def _git(*args: str) -> str | None:
+    try:
+        out = subprocess.run(
+            ["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=10
+        )
+        return out.stdout.strip() if out.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _balanced_batch(num_flights: int, max_batch: int) -> int:
+    """The env batch that flies ``num_flights`` in the fewest chunks with the least padding."""
+    chunks = -(-num_flights // max_batch)
+    return -(-num_flights // chunks)
+
+
+def generate_dataset(
+    out: str | os.PathLike,
+    spec: GenerationSpec,
+    *,
+    max_batch: int = 2048,
+    device: str | torch.device = "cpu",
+    compile_step: bool = False,
+    overwrite: bool = False,
+    progress: bool = True,
+    command: str | None = None,
+    after_chunk: Callable[[int], None] | None = None,
+) -> Path:
+    """Fly ``spec``'s scenarios with the PD baseline and write the dataset to ``out``.
+
+    ``after_chunk(i)`` is called after chunk ``i`` is written (tests use it to interrupt).
+    Returns the final path. Refuses to replace an existing dataset unless ``overwrite``.
+    """
+    if max_batch < 1:
+        raise ValueError(f"max_batch={max_batch} must be >= 1")
+    out = Path(out).resolve()
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists; pass overwrite=True (--overwrite) to replace it")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    t0 = time.perf_counter()
+    scenarios = spec.scenarios()
+    n = scenarios.batch_size[0]
+    batch = _balanced_batch(n, max_batch)
+    env = QuadWindEnv(spec.config, batch_size=[batch], device=device, compile_step=compile_step)
+    traj = env.sim.trajectories
+    log_every = spec.config.timing.log_every_control_steps
+    pattern_start, end_step = traj.schedule(scenarios["traj_id"].to(env.device), scenarios["altitude_m"].to(env.device))
+    pattern_start, end_step = pattern_start.cpu(), end_step.cpu()
+    t_len = int(end_step.max()) // log_every + 1  # every flight starts on the ground (start_step 0)
+    if bool((scenarios["start_step"] != 0).any()):
+        raise ValueError("dataset flights start on the ground: scenario start_step must be 0")
+
+    try:
+        tmp.mkdir(parents=True)
+        data = _record_template(n, t_len).memmap_like(tmp / "data", num_threads=0)
+        data["scenario"].update_(scenarios.select(*SCENARIO_FIELDS))
+        data["case_id"].copy_(scenarios["case_id"])
+        data["traj_id"].copy_(scenarios["traj_id"])
+        data["pattern_start_step"].copy_(pattern_start)
+        data["end_step"].copy_(end_step)
+        rec = data["record"]
+        flights = iter_flights(env, scenarios, policy=None, log_keys=LOG_KEYS, progress=progress)
+        for i, part in enumerate(flights):
+            idx = part.index
+            log = part.log
+            length = log.batch_size[1]
+            mean_wind = log.get(("truth", "mean_wind"))
+            chunk = TensorDict(
+                {k: log.get(k) for k in RAW_RECORD_KEYS + ("step", "valid")},
+                batch_size=log.batch_size,
+            )
+            chunk.update(
+                pos=log.get(("truth", "pos")),
+                wind=log.get(("truth", "wind")),
+                mean_wind_ne=torch.stack((mean_wind[..., 1], mean_wind[..., 0]), -1),
+            )
+            # past its end, every flight repeats its last valid sample (what the env simulates
+            # after truncation depends on the chunk, so it is not kept: batch-independent data)
+            valid_len = chunk["valid"].sum(1)
+            t_idx = torch.arange(length).clamp_max(valid_len[:, None] - 1)
+            rows = torch.arange(idx.numel())[:, None].expand_as(t_idx)
+            chunk = chunk.apply(lambda v: v[rows, t_idx], batch_size=chunk.batch_size)
+            chunk["valid"] = torch.arange(length) < valid_len[:, None]
+            rec[idx, :length] = chunk
+            if length < t_len:
+                tail = chunk[:, -1:].expand(idx.numel(), t_len - length).clone()
+                tail["valid"] = torch.zeros_like(tail["valid"])
+                rec[idx, length:] = tail
+            data["length"][idx] = valid_len
+            data["rmse_xy"][idx] = part.rmse_xy
+            data["rmse_z"][idx] = part.rmse_z
+            data["crashed"][idx] = part.crashed
+            if after_chunk is not None:
+                after_chunk(i)
+
+        manifest = {
+            "format_version": FORMAT_VERSION,
+            "regime": spec.regime,
+            "cases": spec.cases,
+            "seed": spec.seed,
+            "num_flights": n,
+            "record_length": t_len,
+            "record_dt_s": spec.config.timing.log_dt_s,
+            "trajectories": list(spec.trajectories),
+            "trajectory_ids": {name: TRAJECTORIES.index(name) for name in spec.trajectories},
+            "raw_record_keys": list(RAW_RECORD_KEYS),
+            "ranges": asdict(spec.regime_ranges),
+            "config": config_to_dict(spec.config),
+            "crashed": int(data["crashed"].sum()),
+        }
+        (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
+        provenance = {
+            "command": command,
+            "git_commit": _git("rev-parse", "HEAD"),
+            "git_dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "wall_time_s": round(time.perf_counter() - t0, 2),
+            "env_batch": batch,
+            "compile_step": compile_step,
+            "device": str(device),
+            "torch_threads": torch.get_num_threads(),
+            "created_unix": int(time.time()),
+        }
+        (tmp / "provenance.json").write_text(json.dumps(provenance, indent=1, sort_keys=True) + "\n")
+        del data, rec
+        _fsync_tree(tmp)
+        (tmp / COMPLETE_MARKER).write_text("ok\n")
+        if out.exists():  # overwrite: swap, then delete the old one
+            old = out.parent / f".{out.name}.old-{os.getpid()}"
+            os.replace(out, old)
+            os.replace(tmp, out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
+
+
+def _fsync_tree(root: Path) -> None:
+    for path in sorted(root.rglob("*")):
+        if path.is_file():
+            with open(path, "rb") as f:
+                os.fsync(f.fileno())
+
+
+def is_complete(path: str | os.PathLike) -> bool:
+    path = Path(path)
+    return (path / COMPLETE_MARKER).is_file() and (path / "manifest.json").is_file() and not path.name.startswith(".")
+
+
+def load_dataset(path: str | os.PathLike) -> tuple[TensorDict, dict]:
+    """``(data, manifest)`` of a complete dataset; ``data`` is memory-mapped (read lazily)."""
+    path = Path(path)
+    if not is_complete(path):
+        raise FileNotFoundError(f"{path} is not a complete dataset (no {COMPLETE_MARKER} marker: missing or interrupted)")
+    manifest = json.loads((path / "manifest.json").read_text())
+    if manifest.get("format_version") != FORMAT_VERSION:
+        raise ValueError(f"{path}: dataset format {manifest.get('format_version')}, this code reads {FORMAT_VERSION}")
+    return TensorDict.load_memmap(path / "data"), manifest
+
+
+def describe(data: TensorDict, manifest: dict) -> str:
+    """A few summary lines about a dataset."""
+    length = data["length"]
+    dt = manifest["record_dt_s"]
+    lines = [
+        f"{manifest['regime']}: {manifest['num_flights']} flights = {manifest['cases']} cases x "
+        f"{len(manifest['trajectories'])} trajectories, record [{manifest['num_flights']}, {manifest['record_length']}] at {1 / dt:.0f} Hz",
+        f"flight length {float(length.min()) * dt:.1f}-{float(length.max()) * dt:.1f} s, "
+        f"crashed {int(data['crashed'].sum())}, PD rmse_xy median {float(data['rmse_xy'].median()):.3f} m, "
+        f"rmse_z median {float(data['rmse_z'].median()):.3f} m",
+    ]
+    return "\n".join(lines)
+
+
+def dataset_bytes(path: str | os.PathLike) -> int:
+    """Logical size of the dataset's files (memmaps may be sparse on disk)."""
+    return sum(p.stat().st_size for p in Path(path).rglob("*") if p.is_file())
+

@@ -1,0 +1,252 @@
+"""Datasets (generation, determinism, interruption), the crop, the wind-case split, window
+tables, the balanced sampler and the training-split statistics. All tiny."""
+from __future__ import annotations
+
+import filecmp
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+import torch
+from scipy import stats
+from tensordict.memmap import MemoryMappedTensor
+
+import quadwind_trl.data.generate as generate_mod
+from quadwind_trl.config import EnvConfig, TrajectoryConfig
+from quadwind_trl.data import (
+    CaseBalancedSampler,
+    FeatureExtractor,
+    GenerationSpec,
+    WindowDataset,
+    compute_features,
+    crop_start,
+    generate_dataset,
+    is_complete,
+    load_dataset,
+    prepare_windows,
+    split_cases,
+    window_table,
+)
+from quadwind_trl.data.windows import sample_stats, t_safety_s
+from quadwind_trl.envs import RegimeRanges
+from quadwind_trl.envs.trajectories import TRAJECTORY_IDS, VERTICAL
+
+
+def tiny_spec(seed: int = 5) -> GenerationSpec:
+    cfg = replace(EnvConfig(), trajectories=replace(TrajectoryConfig(), horizontal_duration_s=4.0))
+    return GenerationSpec(regime="horizontal", cases=2, seed=seed, config=cfg, ranges=RegimeRanges(altitude_m=(10.0, 14.0)))
+
+
+def micro_spec(seed: int = 9) -> GenerationSpec:
+    """5 flights of about 7 s: for the tests that generate more than once."""
+    cfg = replace(EnvConfig(), trajectories=replace(TrajectoryConfig(), horizontal_duration_s=1.0))
+    return GenerationSpec(regime="horizontal", cases=1, seed=seed, config=cfg, ranges=RegimeRanges(altitude_m=(5.0, 6.0)))
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ds") / "tiny"
+    return generate_dataset(out, tiny_spec(), max_batch=10, progress=False)
+
+
+def data_files(root: Path) -> list[Path]:
+    return sorted(p.relative_to(root) for p in root.rglob("*") if p.is_file() and p.name != "provenance.json")
+
+
+def test_dataset_layout(tiny):
+    data, manifest = load_dataset(tiny)
+    n = 2 * 5
+    assert data.batch_size == (n,) and manifest["num_flights"] == n
+    rec = data["record"]
+    assert rec.batch_size[0] == n and rec.batch_size[1] == manifest["record_length"]
+    assert rec["meas"].shape[-1] == 16 and rec["mean_wind_ne"].shape[-1] == 2
+    assert all(isinstance(v, MemoryMappedTensor) for v in data.values(True, True))  # lazy, on disk
+    # valid samples are a prefix of the stored length; steps are every 10th control step
+    t_idx = torch.arange(rec.batch_size[1])
+    assert torch.equal(rec["valid"], t_idx < data["length"][:, None])
+    assert torch.equal(rec["step"][0, :5, 0], torch.arange(5) * 10)
+    # labels: the (north, east) components of the mean wind
+    assert torch.all(rec["mean_wind_ne"][:, 0] != 0)
+    assert torch.equal(data["case_id"], torch.arange(2).repeat_interleave(5))
+    assert torch.equal(data["traj_id"], data["scenario", "traj_id"])
+    assert manifest["trajectories"] == ["loiter_circle_h", "racetrack_h", "figure8_h", "cloverleaf_h", "lawnmower_h"]
+    assert not bool(data["crashed"].any())
+
+
+def test_generation_is_deterministic_and_batch_independent(tmp_path):
+    first = generate_dataset(tmp_path / "first", micro_spec(), max_batch=5, progress=False)
+    again = generate_dataset(tmp_path / "again", micro_spec(), max_batch=3, progress=False)
+    files = data_files(first)
+    assert files == data_files(again)
+    assert sum(str(f).endswith(".memmap") for f in files) > 20
+    _, mismatch, errors = filecmp.cmpfiles(first, again, [str(f) for f in files], shallow=False)
+    assert mismatch == [] and errors == []
+    assert json.loads((again / "provenance.json").read_text())["env_batch"] == 3
+
+
+class Interrupt(Exception):
+    pass
+
+
+def test_interrupted_generation_never_loads(tmp_path, monkeypatch):
+    out = tmp_path / "cut"
+
+    def stop(i):
+        raise Interrupt
+
+    # a Python-level interruption cleans its temporary directory up
+    with pytest.raises(Interrupt):
+        generate_dataset(out, micro_spec(), max_batch=2, progress=False, after_chunk=stop)
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    with pytest.raises(FileNotFoundError, match="not a complete dataset"):
+        load_dataset(out)
+    # a hard kill (no cleanup runs) leaves only a hidden partial directory without the marker
+    monkeypatch.setattr(generate_mod.shutil, "rmtree", lambda *a, **k: None)
+    with pytest.raises(Interrupt):
+        generate_dataset(out, micro_spec(), max_batch=2, progress=False, after_chunk=stop)
+    leftovers = list(tmp_path.iterdir())
+    assert not out.exists() and len(leftovers) == 1 and leftovers[0].name.startswith(".cut.partial-")
+    assert (leftovers[0] / "data").is_dir() and not is_complete(leftovers[0])
+    for path in (out, leftovers[0]):
+        with pytest.raises(FileNotFoundError):
+            load_dataset(path)
+
+
+def test_existing_dataset_is_not_replaced_without_overwrite(tiny):
+    with pytest.raises(FileExistsError):
+        generate_dataset(tiny, tiny_spec(), progress=False)
+
+
+def test_bad_regime_fails_early():
+    with pytest.raises(ValueError, match="regime"):
+        GenerationSpec(regime="diagonal")
+    with pytest.raises(ValueError, match="altitude_m"):
+        GenerationSpec(regime="vertical", ranges=RegimeRanges()).scenarios()
+
+
+def test_crop_removes_exactly_the_climb(tiny):
+    """With no settling margin the crop starts at the first sample of the pattern (the
+    reference has reached the flight altitude); by default ``SETTLE_S`` = 2 s later."""
+    data, manifest = load_dataset(tiny)
+    traj = TrajectoryConfig(horizontal_duration_s=4.0)
+    altitude = data["scenario", "altitude_m"].clone()
+    exact = crop_start(data["traj_id"].clone(), altitude, traj, settle_s=0.0, t_min_s=0.0)
+    assert torch.equal(exact, data["pattern_start_step"] // 10)
+    ref_z = data["record", "ref_pos"][..., 2]
+    for i in range(data.batch_size[0]):
+        k = int(exact[i])
+        # the first kept sample is the first one at or after the reference climb's end
+        climb_end = traj.arm_time_s + float(altitude[i]) / traj.climb_rate_m_s + traj.climb_blend_s
+        assert (k - 1) * 0.1 < climb_end <= k * 0.1 + 1e-6
+        assert torch.all(ref_z[i, :10] == 0) and torch.all(ref_z[i, 10:k].diff() > 0)  # ground, then climbing
+        assert torch.allclose(ref_z[i, k : int(data["length"][i])], altitude[i].expand(int(data["length"][i]) - k), atol=1e-4)
+    default = crop_start(data["traj_id"].clone(), altitude, traj)
+    assert torch.equal(default, exact + 20)
+    assert t_safety_s(traj) == 6.0
+
+
+def test_crop_formula_and_vertical_flights():
+    traj = TrajectoryConfig()
+    ids = torch.tensor([TRAJECTORY_IDS["racetrack_h"], TRAJECTORY_IDS["racetrack_h"], TRAJECTORY_IDS[VERTICAL[2]]])
+    alt = torch.tensor([300.0, 3.0, 600.0])
+    got = crop_start(ids, alt, traj)
+    # 300 m: 100 s climb + 6 s; 3 m: 1 s + 6 s < t_min = 8 s; vertical: the climb is the flight
+    assert got.tolist() == [1060, 80, 80]
+
+
+def test_split_holds_out_wind_cases():
+    cases = torch.arange(1000).repeat_interleave(5)
+    parts = split_cases(cases)
+    sizes = {k: v.numel() for k, v in parts.items()}
+    assert sizes == {"train": 700, "val": 150, "test": 150}
+    allc = torch.cat(list(parts.values()))
+    assert torch.equal(torch.sort(allc).values, torch.arange(1000))  # disjoint and complete
+    again = split_cases(cases)
+    assert all(torch.equal(parts[k], again[k]) for k in parts)  # fixed seed
+    other = split_cases(cases, seed=1)
+    assert not torch.equal(parts["train"], other["train"])
+    with pytest.raises(ValueError, match="fractions"):
+        split_cases(cases, (0.5, 0.2, 0.2))
+
+
+def test_window_table_is_index_based_and_inside_the_crop():
+    flights = torch.tensor([4, 7, 9])
+    start = torch.tensor([10, 0, 50])
+    length = torch.tensor([100, 59, 121])
+    table = window_table(flights, start, length, window=60, stride=12)
+    # flight 4: ends 69, 81, 93; flight 7: too short; flight 9: ends 109 (121 - 1 = 120 < 121)
+    assert table.tolist() == [[4, 69], [4, 81], [4, 93], [9, 109]]
+    feats = torch.arange(10 * 130 * 2, dtype=torch.float32).reshape(10, 130, 2)
+    labels = torch.randn(10, 130, 2)
+    ds = WindowDataset(feats, labels, table)
+    x, y = ds[1]
+    assert torch.equal(x, feats[4, 22:82]) and torch.equal(y, labels[4, 81])
+    batch = ds.__getitems__([0, 3])
+    assert torch.equal(batch[1][0], feats[9, 50:110])
+
+
+def test_balanced_sampler_draws_cases_uniformly():
+    counts = torch.tensor([1, 3, 10, 40, 200, 5, 2, 80, 20, 7])
+    window_case = torch.repeat_interleave(torch.arange(10) * 3 + 100, counts)  # arbitrary ids
+    window_case = window_case[torch.randperm(window_case.numel(), generator=torch.Generator().manual_seed(0))]
+    sampler = CaseBalancedSampler(window_case, num_samples=20000, seed=3)
+    idx = torch.tensor(list(sampler))
+    assert len(idx) == 20000 and idx.min() >= 0 and idx.max() < window_case.numel()
+    drawn = torch.bincount(window_case[idx] - 100)[::3]
+    assert drawn.sum() == 20000
+    _, p = stats.chisquare(drawn.numpy())
+    assert p > 1e-3, drawn
+    # a proportional sampler would have drawn case 4 (200 of 368 windows) ~54 % of the time
+    assert drawn[4] < 0.15 * 20000
+    # within a case, windows are uniform
+    in_case = idx[window_case[idx] == 4 * 3 + 100]
+    _, counts_in = torch.unique(in_case, return_counts=True)
+    assert counts_in.numel() > 150
+    # seeded and epoch-dependent
+    assert torch.equal(idx, torch.tensor(list(CaseBalancedSampler(window_case, num_samples=20000, seed=3))))
+    sampler.set_epoch(1)
+    assert not torch.equal(idx, torch.tensor(list(sampler)))
+
+
+def test_stats_from_training_split_only():
+    gen = torch.Generator().manual_seed(0)
+    values = torch.randn(6, 50, 3, generator=gen) * torch.tensor([1.0, 2.0, 0.0]) + 5.0
+    flights = torch.tensor([0, 2, 3])
+    start = torch.tensor([5, 0, 10])
+    length = torch.tensor([50, 20, 40])
+    st = sample_stats(values, flights, start, length)
+    pooled = torch.cat([values[0, 5:50], values[2, 0:20], values[3, 10:40]])
+    assert torch.allclose(st.mean, pooled.mean(0), atol=1e-5)
+    assert torch.allclose(st.std[:2], pooled.std(0, unbiased=False)[:2], atol=1e-5)
+    assert st.std[2] == 1.0  # a constant channel is left unscaled
+    values[1] += 100.0  # a non-training flight changes nothing
+    values[0, :5] += 100.0  # nor does the cropped part of a training flight
+    st2 = sample_stats(values, flights, start, length)
+    assert torch.equal(st.mean, st2.mean) and torch.equal(st.std, st2.std)
+
+
+def test_features_and_windows_of_a_generated_dataset(tiny, tmp_path):
+    data, manifest = load_dataset(tiny)
+    fx = FeatureExtractor.from_config("horizontal")
+    cached = compute_features(data["record"], fx, out=tmp_path / "h.memmap", chunk=4)
+    assert torch.equal(cached, compute_features(data["record"], fx, out=tmp_path / "h.memmap"))  # reloads
+    # online, the way a transform sees it: one contiguous tick per call, all flights at once
+    state = fx.init_state(data.batch_size[0])
+    rec = data["record"]
+    for t in range(rec.batch_size[1]):
+        state, f = fx.step(state, {k: rec[k][:, t].clone() for k in fx.raw_keys})
+        assert torch.equal(f, cached[:, t])
+    # these flights cruise for 4 s only: 20-sample windows
+    wd = prepare_windows(data, manifest, cached, fx.channels, window=20, stride=5, settle_s=0.0, fractions=(0.5, 0.0, 0.5))
+    train_cases = set(wd.window_cases("train").tolist())
+    test_cases = set(wd.window_cases("test").tolist())
+    assert train_cases and test_cases and not (train_cases & test_cases)
+    for table in wd.tables.values():
+        assert torch.all(table[:, 1] - 19 >= wd.crop[table[:, 0]])
+        assert torch.all(table[:, 1] < wd.length[table[:, 0]])
+    x, y = wd.dataset("train")[0]
+    assert x.shape == (20, 48) and y.shape == (2,)
+    f0, e0 = wd.tables["train"][0].tolist()
+    assert torch.allclose(x, wd.feature_stats(cached[f0, e0 - 19 : e0 + 1]))
+    assert torch.equal(y, data["record", "mean_wind_ne"][f0, e0])
