@@ -65,9 +65,9 @@ class ControllerConfig:
     """Flatness-based PD cascade (paper): the wind-blind baseline and the residual's base law.
 
     ``feedback`` picks what the controller reads: ``"truth"`` is the simulator state,
-    ``"sensors"`` the sample-and-held measurements of :class:`SensorConfig` (a real autopilot
-    reads filtered measurements; see ``docs/simulator.md`` for the calibration that chose the
-    default).
+    ``"sensors"`` the raw sample-and-held measurements of :class:`SensorConfig`, ``"estimate"``
+    the output of a simple navigation filter over those measurements (:class:`NavigationConfig`),
+    as a real autopilot flies. ``docs/simulator.md`` gives the calibration behind the default.
     """
 
     kp_pos: tuple[float, float, float] = (5.0, 5.0, 7.0)  # paper, 1/s^2
@@ -76,12 +76,29 @@ class ControllerConfig:
     k_rate: tuple[float, float, float] = (3.5, 3.5, 2.0)  # paper, K_omega in N m s / rad
     max_tilt_deg: float = 35.0  # paper, commanded-tilt limit
     pos_error_limit_m: tuple[float, float, float] = (12.0, 12.0, 15.0)  # paper
-    feedback: Literal["truth", "sensors"] = "truth"
+    feedback: Literal["truth", "sensors", "estimate"] = "truth"
 
     def validate(self) -> None:
         _check_range("ControllerConfig", "max_tilt_deg", self.max_tilt_deg, 1.0, 89.0)
-        if self.feedback not in ("truth", "sensors"):
-            raise ValueError(f"ControllerConfig.feedback={self.feedback!r}; allowed: 'truth', 'sensors'")
+        if self.feedback not in ("truth", "sensors", "estimate"):
+            raise ValueError(f"ControllerConfig.feedback={self.feedback!r}; allowed: 'truth', 'sensors', 'estimate'")
+
+
+@dataclass(frozen=True)
+class NavigationConfig:
+    """Complementary-filter gains (fraction of the innovation applied per new sample); ours.
+
+    0.1 per 10 Hz GPS sample is a 1 s position time constant, 0.2 a 0.5 s velocity one; 0.04
+    per 25 Hz barometer sample a 1 s altitude one. Between samples the accelerometer predicts.
+    """
+
+    gps_position_gain: float = 0.1
+    gps_velocity_gain: float = 0.2
+    baro_gain: float = 0.04
+
+    def validate(self) -> None:
+        for name in ("gps_position_gain", "gps_velocity_gain", "baro_gain"):
+            _check_range("NavigationConfig", name, getattr(self, name), 0.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -239,6 +256,7 @@ class EnvConfig:
 
     vehicle: VehicleConfig = field(default_factory=VehicleConfig)
     controller: ControllerConfig = field(default_factory=ControllerConfig)
+    navigation: NavigationConfig = field(default_factory=NavigationConfig)
     residual: ResidualConfig = field(default_factory=ResidualConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     timing: TimingConfig = field(default_factory=TimingConfig)

@@ -65,6 +65,10 @@ class SensorSuite:
             device=device,
         )
 
+    def ticks(self, step: Tensor, channel: int) -> Tensor:
+        """bool ``[N, 1]``: whether ``channel``'s instrument delivers a new sample at ``step``."""
+        return (step % self.period[channel] == 0).unsqueeze(-1)
+
     def init_state(self, sensor_seed: Tensor) -> dict[str, Tensor]:
         n = sensor_seed.shape[0]
         zeros = torch.zeros(n, NUM_SENSOR_CHANNELS, device=sensor_seed.device)

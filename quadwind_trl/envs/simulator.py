@@ -23,6 +23,7 @@ from torch import Tensor
 from ..config import GRAVITY_M_S2, EnvConfig
 from .atmosphere import Atmosphere
 from .controller import ControllerParams, pd_control
+from .navigation import NavigationParams, init_navigation, update_navigation
 from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse, rotmat_from_euler
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
@@ -61,6 +62,7 @@ class QuadSimulator:
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
         self.sensors = SensorSuite(c.sensors, c.timing.control_dt_s, dev)
+        self.navigation = NavigationParams.from_config(c.navigation)
         self.action_scale = torch.tensor(c.residual.action_scale, device=dev)
         self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
         self.control_dt = c.timing.control_dt_s
@@ -104,7 +106,10 @@ class QuadSimulator:
         )
         state.update({f"wind.{k}": v for k, v in self.atmosphere.init_state(sc).items()})
         state.update({f"sensor.{k}": v for k, v in self.sensors.init_state(sc["sensor_seed"]).items()})
-        return self._observe_instant(state, first=True)
+        state = self._observe_instant(state, first=True)
+        # an airborne start has been flying under the PD: report that as the last command
+        state["cmd"] = torch.where(airborne & (step >= self.arm_step).unsqueeze(-1), state["pd_wrench"], 0.0)
+        return state
 
     def reset(self, state: dict[str, Tensor] | None, scenario: TensorDict, mask: Tensor | None = None) -> dict[str, Tensor]:
         """Start the episodes of rows ``mask`` (all rows if None) from ``scenario`` (all rows);
@@ -123,8 +128,8 @@ class QuadSimulator:
         target = action.clamp(-1.0, 1.0) * self.action_scale
         ff = r.smoothing * ff_prev + (1.0 - r.smoothing) * target
         ff = ff_prev + torch.maximum(torch.minimum(ff - ff_prev, self.slew_limit), -self.slew_limit)
-        cmd = state["pd_wrench"] + ff
         armed = (state["step"] >= self.arm_step).unsqueeze(-1)
+        cmd = torch.where(armed, state["pd_wrench"] + ff, 0.0)  # what is applied: motors off before arming
         rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
 
         body = RigidBody(*(state[k] for k in RigidBody._fields))
@@ -171,14 +176,28 @@ class QuadSimulator:
         force = torch.ones_like(state["step"], dtype=torch.bool).unsqueeze(-1) if first else None
         meas, sensor_state = self.sensors.measure(sensor_state, truth, state["step"], force=force)
 
-        if self.cfg.controller.feedback == "sensors":
-            nav_pos = torch.cat((meas[..., 0:2], meas[..., 6:7]), -1)
-            nav = (nav_pos, meas[..., 3:6], rotmat_from_euler(meas[..., 7:10]), meas[..., 10:13])
-        else:
+        out = dict(state)
+        feedback = self.cfg.controller.feedback
+        if feedback == "truth":
             nav = (state["pos"], state["vel"], rot, state["omega"])
+        else:
+            if feedback == "sensors":
+                estimate = {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6]}
+            elif first:
+                estimate = init_navigation(meas)
+            else:
+                estimate = update_navigation(
+                    {"pos": state["nav.pos"], "vel": state["nav.vel"]},
+                    meas,
+                    self.sensors.ticks(state["step"], 0),
+                    self.sensors.ticks(state["step"], 6),
+                    self.navigation,
+                    self.control_dt,
+                )
+            out.update({f"nav.{k}": v for k, v in estimate.items()})
+            nav = (estimate["pos"], estimate["vel"], rotmat_from_euler(meas[..., 7:10]), meas[..., 10:13])
         pd = pd_control(*nav, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw, ref.yaw_rate, self.controller)
 
-        out = dict(state)
         out.update({f"wind.{k}": v for k, v in wind_state.items()})
         out.update({f"sensor.{k}": v for k, v in sensor_state.items()})
         out.update(

@@ -1,0 +1,1 @@
+"""Metrics, paired evaluation, statistics and figures."""

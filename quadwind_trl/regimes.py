@@ -1,0 +1,115 @@
+"""The flight regimes of the paper in one place: dataset designs, RL training distributions and
+the factorial evaluation sweeps. Everything not stated by the paper is a choice documented in
+``docs/simulator.md``.
+
+* Datasets (estimator training): Latin-hypercube wind cases over wide ranges; horizontal flights
+  at their own altitude (80-550 m), vertical flights climbing to 600 m.
+* RL training: horizontal at one fixed altitude, U in [3, 12] m/s, intensity [0.05, 0.25];
+  vertical U_mean in [2, 10] m/s, shear alpha in [0.08, 0.15] coupled with U (the mean wind at
+  600 m stays within the estimator's 20 m/s envelope), veer +-5 deg / 100 m.
+* Evaluation: the paper's factorial sweeps (trajectories x wind levels x intensities x seeds)
+  on wind cases drawn with a sampling seed disjoint from every training seed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import torch
+from tensordict import TensorDict
+
+from .envs.counter_rng import hash_bits
+from .envs.scenarios import RegimeRanges, latin_hypercube, make_scenarios
+from .envs.trajectories import HORIZONTAL, TRAJECTORY_IDS, VERTICAL
+
+HORIZONTAL_FLIGHT_ALTITUDE_M = 100.0
+
+# estimator datasets (paper: LHS over 7 / 6 dimensions, 20 m/s ceiling at altitude)
+HORIZONTAL_DATASET = RegimeRanges()
+VERTICAL_DATASET = RegimeRanges(altitude_m=None)
+
+# RL training distributions (paper, Section "Training regimes")
+HORIZONTAL_RL = RegimeRanges(
+    wind_speed_m_s=(3.0, 12.0),
+    intensity=(0.05, 0.25),
+    shear_alpha=(0.15, 0.25),
+    altitude_m=(HORIZONTAL_FLIGHT_ALTITUDE_M, HORIZONTAL_FLIGHT_ALTITUDE_M),
+)
+VERTICAL_RL = RegimeRanges(
+    wind_speed_m_s=(2.0, 10.0),
+    intensity=(0.05, 0.25),
+    shear_alpha=(0.08, 0.15),
+    veer_deg_per_100m=(-5.0, 5.0),
+    altitude_m=None,
+)
+
+DATASET_SEED = {"horizontal": 1001, "vertical": 2001}
+DATASET_UNSEEN_SEED = {"horizontal": 1002, "vertical": 2002}  # an independent LHS for generalisation
+EVAL_DESIGN_SEED = 9001  # disjoint from every dataset and training seed
+
+
+@dataclass(frozen=True)
+class EvalSweep:
+    """A factorial evaluation: ``trajectories x wind_speeds x intensities x seeds`` episodes.
+
+    Each (wind speed, intensity, seed) triple is one wind case, flown on every trajectory; its
+    remaining regime parameters (direction, shear, veer, length scale) come from a Latin
+    hypercube over ``ranges`` drawn with ``design_seed``; turbulence and sensor seeds from the
+    case index. Stability cycles with the seed index.
+    """
+
+    name: str
+    trajectories: tuple[str, ...]
+    wind_speeds: tuple[float, ...]
+    intensities: tuple[float, ...]
+    seeds: int
+    ranges: RegimeRanges
+    design_seed: int = EVAL_DESIGN_SEED
+
+    @property
+    def num_episodes(self) -> int:
+        return len(self.trajectories) * len(self.wind_speeds) * len(self.intensities) * self.seeds
+
+    def scenarios(self) -> TensorDict:
+        """The sweep's episodes (case-major, trajectory-minor), with ``case_id``, ``seed_index``."""
+        speeds = torch.tensor(self.wind_speeds, dtype=torch.float64)
+        intens = torch.tensor(self.intensities, dtype=torch.float64)
+        grid = torch.cartesian_prod(speeds, intens, torch.arange(self.seeds, dtype=torch.float64))
+        n_cases = grid.shape[0]
+        u = latin_hypercube(n_cases, self.ranges.dims, self.design_seed)
+
+        def scale(col: int, bounds: tuple[float, float]) -> torch.Tensor:
+            return bounds[0] + u[:, col] * (bounds[1] - bounds[0])
+
+        if self.ranges.altitude_m is None:
+            altitude = torch.full((n_cases,), self.ranges.top_altitude_m, dtype=torch.float64)
+        else:
+            altitude = scale(6, self.ranges.altitude_m)
+        case = torch.arange(n_cases)
+        seeds = hash_bits(torch.full((n_cases,), self.design_seed, dtype=torch.int64), case, 304, 2) & 0x7FFFFFFF
+        cases = make_scenarios(
+            n_cases,
+            wind_speed_ref_m_s=grid[:, 0],
+            turb_intensity=grid[:, 1],
+            wind_dir_deg=scale(1, self.ranges.wind_dir_deg),
+            shear_alpha=scale(3, self.ranges.shear_alpha),
+            veer_deg_per_100m=scale(4, self.ranges.veer_deg_per_100m),
+            turb_length_scale_m=scale(5, self.ranges.length_scale_m),
+            altitude_m=altitude,
+            stability=grid[:, 2].long() % 3,
+            turb_seed=seeds[:, 0],
+            sensor_seed=seeds[:, 1],
+        )
+        t = len(self.trajectories)
+        out = cases.unsqueeze(1).expand(n_cases, t).clone().reshape(n_cases * t)
+        out["traj_id"] = torch.tensor([TRAJECTORY_IDS[name] for name in self.trajectories]).repeat(n_cases)
+        out["case_id"] = case.repeat_interleave(t)
+        out["seed_index"] = grid[:, 2].long().repeat_interleave(t)
+        return out
+
+
+HORIZONTAL_SWEEP = EvalSweep("horizontal", HORIZONTAL, (4.0, 6.0, 8.0, 10.0, 12.0), (0.05, 0.15, 0.25), 3, HORIZONTAL_RL)
+VERTICAL_SWEEP = EvalSweep("vertical", VERTICAL, (3.0, 5.0, 7.0, 9.0), (0.05, 0.15, 0.25), 3, VERTICAL_RL)
+# the paper: 90 out-of-distribution episodes at U = 13-15 m/s and quotes intensity 0.1 among them;
+# 5 trajectories x 3 speeds x 2 intensities x 3 seeds = 90
+OOD_SWEEP = EvalSweep("ood", HORIZONTAL, (13.0, 14.0, 15.0), (0.1, 0.2), 3, HORIZONTAL_RL)
+SWEEPS = {s.name: s for s in (HORIZONTAL_SWEEP, VERTICAL_SWEEP, OOD_SWEEP)}
