@@ -5,8 +5,11 @@ not depend on the batch size, on the row's position in the batch, or on what oth
 That is what lets a paired evaluation replay one episode spec under several controllers and get
 identical wind and sensor noise (DESIGN.md, invariant 2).
 
-The hash is a 32-bit integer mixer (``lowbias32`` constants) evaluated in int64 with every product
-masked to 32 bits, so no intermediate overflows int64 on any device.
+The hash is a 32-bit xorshift-multiply integer mixer in the style of ``lowbias32`` (the first
+multiplier, 0x7FEB352D, is lowbias32's; the second, 0x2C1B3C6D, is not lowbias32's 0x846CA68B:
+the streams are defined by these constants, so they stay; tests/test_sensors.py checks the
+statistics), evaluated in int64 with every product masked to 32 bits, so no intermediate
+overflows int64 on any device.
 """
 from __future__ import annotations
 

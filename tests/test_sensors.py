@@ -1,0 +1,235 @@
+"""Sensor suite statistics (noise, sample-and-hold, bias random walk, replay) and the
+counter-based random numbers they are drawn from."""
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+
+from quadwind_trl.config import SensorChannelConfig, SensorConfig, TimingConfig
+from quadwind_trl.envs.counter_rng import hash_bits, hash_normal, hash_uniform
+from quadwind_trl.envs.sensors import NUM_SENSOR_CHANNELS, SENSOR_CHANNELS, SensorSuite
+
+DT = TimingConfig().control_dt_s
+CFG = SensorConfig()
+PER_CHANNEL = [CFG.gps_pos] * 3 + [CFG.gps_vel] * 3 + [CFG.baro_alt] + [CFG.attitude_rp] * 2 + [CFG.attitude_yaw] + [
+    CFG.gyro
+] * 3 + [CFG.accel] * 3
+NOISE = torch.tensor([c.noise_std for c in PER_CHANNEL], dtype=torch.float64)
+WALK = torch.tensor([c.bias_walk_std_per_sqrt_s for c in PER_CHANNEL], dtype=torch.float64)
+# control steps between samples at 100 Hz: GPS 10 Hz, baro 25 Hz, attitude 50 Hz, gyro/accel 200 Hz
+PERIOD = torch.tensor([10] * 6 + [4] + [2] * 3 + [1] * 6)
+YAW = SENSOR_CHANNELS.index("yaw")
+GROUPS = {"gps_pos": [0, 1, 2], "gps_vel": [3, 4, 5], "baro": [6], "roll_pitch": [7, 8], "yaw": [9], "gyro": [10, 11, 12],
+          "accel": [13, 14, 15]}  # fmt: skip
+
+
+def wrap(angle: torch.Tensor) -> torch.Tensor:
+    return torch.remainder(angle + math.pi, 2 * math.pi) - math.pi
+
+
+def random_truth(n: int, gen: torch.Generator) -> torch.Tensor:
+    truth = torch.randn(n, NUM_SENSOR_CHANNELS, generator=gen) * 3.0
+    truth[:, YAW] = (torch.rand(n, generator=gen) * 2 - 1) * 3.1
+    return truth
+
+
+def test_paper_noise_levels_and_rates():
+    assert (CFG.gps_pos.rate_hz, CFG.gps_pos.noise_std) == (10.0, 0.7)
+    assert (CFG.gps_vel.rate_hz, CFG.gps_vel.noise_std) == (10.0, 0.15)
+    assert (CFG.baro_alt.rate_hz, CFG.baro_alt.noise_std) == (25.0, 0.8)
+    assert CFG.attitude_rp.rate_hz == CFG.attitude_yaw.rate_hz == 50.0
+    assert math.isclose(CFG.attitude_rp.noise_std, math.radians(0.6))
+    assert math.isclose(CFG.attitude_yaw.noise_std, math.radians(1.5))
+    assert (CFG.gyro.rate_hz, CFG.accel.rate_hz) == (200.0, 200.0)
+    assert math.isclose(CFG.gyro.noise_std, math.radians(0.3)) and CFG.accel.noise_std == 0.05
+    suite = SensorSuite(CFG, DT)
+    assert torch.equal(suite.period.cpu(), PERIOD)
+    torch.testing.assert_close(suite.bias_step_std.double(), WALK * (PERIOD * DT).double().sqrt(), rtol=1e-6, atol=0)
+
+
+def test_rates_that_do_not_divide_the_control_rate_are_refused():
+    with pytest.raises(ValueError, match="gps_x"):
+        SensorSuite(replace(CFG, gps_pos=SensorChannelConfig(30.0, 0.7, 0.05)), DT)
+
+
+def test_disabled_sensors_return_the_truth():
+    suite = SensorSuite(replace(CFG, enabled=False), DT)
+    truth = torch.randn(5, NUM_SENSOR_CHANNELS)
+    meas, _ = suite.measure(suite.init_state(torch.arange(5)), truth, torch.zeros(5, dtype=torch.int64))
+    assert torch.equal(meas, truth)
+
+
+def test_white_noise_std_per_channel_with_bias_disabled():
+    cfg = SensorConfig(**{
+        name: SensorChannelConfig(getattr(CFG, name).rate_hz, getattr(CFG, name).noise_std, 0.0)
+        for name in ("gps_pos", "gps_vel", "baro_alt", "attitude_rp", "attitude_yaw", "gyro", "accel")
+    })  # fmt: skip
+    suite = SensorSuite(cfg, DT)
+    n = 1024
+    st = suite.init_state(torch.arange(n) + 10_000)
+    gen = torch.Generator().manual_seed(0)
+    sq, count = torch.zeros(NUM_SENSOR_CHANNELS, dtype=torch.float64), torch.zeros(NUM_SENSOR_CHANNELS)
+    for k in range(100):
+        truth = random_truth(n, gen)
+        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
+        err = meas - truth
+        err[:, YAW] = wrap(err[:, YAW])
+        tick = (k % PERIOD) == 0
+        sq += torch.where(tick, (err.double() ** 2).sum(0), 0.0)
+        count += tick * n
+    std = (sq / count).sqrt()
+    assert ((std / NOISE - 1).abs() < 0.05).all(), dict(zip(SENSOR_CHANNELS, (std / NOISE).tolist()))
+
+
+@pytest.fixture(scope="module")
+def long_run():
+    """2048 seeds, 800 control steps (8 s) of the default suite, random truth every step."""
+    suite = SensorSuite(CFG, DT)
+    n, steps = 2048, 800
+    st = suite.init_state(torch.arange(n) * 3 + 5)
+    gen = torch.Generator().manual_seed(1)
+    noise, increments, bias_at = [], [], {}
+    for k in range(steps):
+        truth = random_truth(n, gen)
+        before = st["bias"]
+        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
+        if k < 200:
+            err = meas - truth - st["bias"]
+            err[:, YAW] = wrap(err[:, YAW])
+            tick = (k % PERIOD) == 0
+            noise.append(torch.where(tick, err, float("nan")))
+            increments.append(torch.where(tick, st["bias"] - before, float("nan")))
+        if k in (199, 799):
+            bias_at[k] = st["bias"].double()
+    # noise and bias increments [n, 200, 16], nan between an instrument's samples
+    return torch.stack(noise, 1).double(), bias_at, torch.stack(increments, 1).double()
+
+
+def test_noise_std_per_channel_with_the_bias_removed(long_run):
+    noise, _, _ = long_run
+    std = noise.nan_to_num().pow(2).sum((0, 1)).div((~noise.isnan()).sum((0, 1))).sqrt()
+    assert ((std / NOISE - 1).abs() < 0.05).all(), dict(zip(SENSOR_CHANNELS, (std / NOISE).tolist()))
+
+
+def test_noise_is_white_and_uncorrelated_across_channels_and_with_the_bias(long_run):
+    noise, _, increments = long_run
+    z = noise / NOISE
+    for c, p in enumerate(PERIOD.tolist()):
+        ticks = z[:, ::p, c]  # consecutive samples of one instrument
+        lag1 = (ticks[:, 1:] * ticks[:, :-1]).mean() / ticks.pow(2).mean()
+        assert abs(lag1) < 0.03, (SENSOR_CHANNELS[c], lag1.item())
+    common = z[:, ::20].reshape(-1, NUM_SENSOR_CHANNELS)  # steps where every channel ticks (lcm 20)
+    corr = torch.corrcoef(common.T)
+    assert (corr - torch.eye(NUM_SENSOR_CHANNELS, dtype=torch.float64)).abs().max() < 0.04
+    # the white noise and the bias step drawn at the same sample are independent
+    for c, p in enumerate(PERIOD.tolist()):
+        pair = torch.stack((noise[:, ::p, c].flatten(), increments[:, ::p, c].flatten()))
+        assert abs(torch.corrcoef(pair)[0, 1]) < 0.03, SENSOR_CHANNELS[c]
+
+
+def test_bias_random_walk_variance_grows_linearly_in_time(long_run):
+    """Ticks at steps 0, p, 2p ...: after steps 0..k, k + 1 divisible by every period, the bias
+    variance is walk^2 (k + 1) dt exactly: 2 s and 8 s here, a ratio of 4."""
+    _, bias, _ = long_run
+    t1, t2 = 200 * DT, 800 * DT
+    for name, chans in GROUPS.items():
+        v1 = bias[199][:, chans].pow(2).mean()  # zero-mean walk: about zero
+        v2 = bias[799][:, chans].pow(2).mean()
+        walk2 = WALK[chans[0]] ** 2
+        assert abs(v2 / v1 / (t2 / t1) - 1) < 0.10, (name, (v2 / v1).item())
+        assert abs(v1 / (walk2 * t1) - 1) < 0.10, (name, (v1 / (walk2 * t1)).item())
+        assert abs(v2 / (walk2 * t2) - 1) < 0.10, (name, (v2 / (walk2 * t2)).item())
+
+
+def test_values_change_only_at_each_sensors_rate_and_hold_in_between():
+    suite = SensorSuite(CFG, DT)
+    n, first = 8, 37  # an episode starting off the sampling grid: sampled at once, then on the grid
+    st = suite.init_state(torch.arange(n))
+    gen = torch.Generator().manual_seed(2)
+    prev, sampled_truth = None, None
+    for k in range(first, first + 60):
+        truth = random_truth(n, gen)
+        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == first else None)
+        tick = ((k % PERIOD) == 0) | (k == first)
+        if prev is not None:
+            changed = (meas != prev).all(0)
+            held = (meas == prev).all(0)
+            assert torch.equal(changed, tick) and torch.equal(held, ~tick), (k, changed, tick)
+        # a held value is the last sample's truth plus its error, not the current truth
+        sampled_truth = torch.where(tick, truth, sampled_truth) if sampled_truth is not None else truth
+        err = meas - sampled_truth
+        err[:, YAW] = wrap(err[:, YAW])
+        assert (err.abs() < 6 * NOISE.float() + 0.05).all()
+        assert (meas[:, YAW] >= -math.pi).all() and (meas[:, YAW] < math.pi).all()
+        prev = meas
+
+
+def test_one_seed_replays_identically_alone_or_in_a_batch():
+    suite = SensorSuite(CFG, DT)
+    n, row = 1000, 613
+    seeds = torch.arange(n) * 7 + 3
+    gen = torch.Generator().manual_seed(3)
+    truths = [random_truth(n, gen) for _ in range(120)]
+
+    def run(index: torch.Tensor, threads: int) -> torch.Tensor:
+        old = torch.get_num_threads()
+        torch.set_num_threads(threads)
+        try:
+            st, out = suite.init_state(seeds[index]), []
+            for k, truth in enumerate(truths):
+                force = torch.ones(len(index), 1, dtype=torch.bool) if k == 0 else None
+                meas, st = suite.measure(st, truth[index], torch.full((len(index),), k), force=force)
+                out.append(torch.cat((meas, st["bias"]), -1))
+        finally:
+            torch.set_num_threads(old)
+        return torch.stack(out, 1)
+
+    batch = run(torch.arange(n), threads=2)
+    alone = run(torch.tensor([row]), threads=1)
+    assert torch.equal(alone[0], batch[row])
+    shuffled = torch.tensor([5, row, 999])
+    assert torch.equal(run(shuffled, threads=1)[1], batch[row])
+    assert not torch.equal(batch[row], batch[row + 1])  # another seed is another stream
+
+
+# --- counter-based random numbers --------------------------------------------------------------
+
+
+def test_hash_normal_is_standard_normal_and_independent():
+    keys = torch.arange(50_000)
+    x = hash_normal(keys, 7, 201, 16).double()
+    assert abs(x.mean()) < 0.005 and abs(x.var() - 1) < 0.01
+    assert abs((x**4).mean() / x.var() ** 2 - 3) < 0.05  # Gaussian kurtosis
+    assert abs((x > 1.96).double().mean() - 0.025) < 0.002
+    corr = torch.corrcoef(x.T) - torch.eye(16, dtype=torch.float64)
+    assert corr.abs().max() < 0.02  # columns
+    assert abs(torch.corrcoef(torch.stack((x[:-1].flatten(), x[1:].flatten())))[0, 1]) < 0.01  # adjacent keys
+    y = hash_normal(torch.full((50_000,), 123), torch.arange(50_000), 201, 4).double()
+    assert abs(torch.corrcoef(torch.stack((y[:-1].flatten(), y[1:].flatten())))[0, 1]) < 0.01  # adjacent counters
+    other = hash_normal(keys, 7, 202, 16).double()
+    assert abs(torch.corrcoef(torch.stack((x.flatten(), other.flatten())))[0, 1]) < 0.01  # streams
+
+
+def test_hash_uniform_is_uniform_in_the_open_interval():
+    u = hash_uniform(torch.arange(100_000), 3, 5, 4).double().flatten()
+    assert u.min() > 0 and u.max() < 1
+    counts = torch.histc(u, bins=50, min=0, max=1)
+    expected = u.numel() / 50
+    chi2 = ((counts - expected) ** 2 / expected).sum().item()
+    assert chi2 < 95.0  # 49 dof: the 99.99 % point is ~95
+
+
+def test_hash_rows_are_pure_functions_of_key_and_counter():
+    keys = torch.tensor([0, 1, 2**40 + 5, -3, 2**62])
+    counters = torch.tensor([0, 10**9, 7, 2**33, -1])
+    full = hash_bits(keys, counters, 9, 6)
+    assert (full >= 0).all() and (full < 2**32).all()
+    perm = torch.tensor([3, 0, 4, 1, 2])
+    assert torch.equal(hash_bits(keys[perm], counters[perm], 9, 6), full[perm])
+    for i in range(5):
+        assert torch.equal(hash_bits(keys[i : i + 1], counters[i : i + 1], 9, 6), full[i : i + 1])
+    assert torch.equal(hash_bits(keys, counters, 9, 3), full[:, :3])  # columns do not depend on num
+    assert (hash_bits(keys, counters, 10, 6) != full).float().mean() > 0.99
