@@ -1,6 +1,8 @@
 """Batched rotation helpers. Quaternions are ``(w, x, y, z)``, unit, rotating body to world."""
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -72,11 +74,21 @@ def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
     )
 
 
+def atan2(y: Tensor, x: Tensor) -> Tensor:
+    """``atan2`` built on ``atan``: ATen's CPU ``atan2`` rounds a tensor's vectorised body and
+    its scalar tail differently, so a row's result would depend on its place in the batch;
+    ``atan`` does not (checked), which keeps replay bitwise whatever the batch."""
+    base = torch.atan(y / torch.where(x == 0, 1.0, x))
+    shifted = torch.where(y >= 0, base + math.pi, base - math.pi)
+    on_axis = torch.where(y > 0, math.pi / 2, torch.where(y < 0, -math.pi / 2, 0.0))
+    return torch.where(x > 0, base, torch.where(x < 0, shifted, on_axis))
+
+
 def euler_from_rotmat(r: Tensor) -> Tensor:
     """``[..., 3]`` Z-Y-X Euler angles (roll, pitch, yaw) in radians."""
-    roll = torch.atan2(r[..., 2, 1], r[..., 2, 2])
+    roll = atan2(r[..., 2, 1], r[..., 2, 2])
     pitch = torch.asin(torch.clamp(-r[..., 2, 0], -1.0, 1.0))
-    yaw = torch.atan2(r[..., 1, 0], r[..., 0, 0])
+    yaw = atan2(r[..., 1, 0], r[..., 0, 0])
     return torch.stack((roll, pitch, yaw), -1)
 
 
@@ -97,9 +109,8 @@ def quat_integrate(q: Tensor, omega_body: Tensor, dt: float) -> Tensor:
 
 
 # Small products as broadcast multiply-and-sum rather than ``@``: as fast for 3x3 and 4x4, fused
-# by torch.compile, and free of BLAS's size-dependent kernel choice (a row's result then depends
-# less on its batch; vectorised transcendental kernels still round tail elements differently, so
-# replay across batch layouts is exact to float32 rounding, and bitwise for the same layout).
+# by torch.compile, and free of BLAS's size-dependent kernel choice, so a row's result does not
+# depend on how many rows share its batch (bitwise replay).
 
 
 def matvec(m: Tensor, v: Tensor) -> Tensor:

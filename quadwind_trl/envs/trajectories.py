@@ -146,7 +146,7 @@ def _still(s: Tensor) -> Tensor:
 class _Pattern:
     path: Callable[[Tensor], Tensor]
     by_phase: bool  # progress is a phase (rad) rather than an arc length (m)
-    speed: float  # mean horizontal speed, m/s
+    speed: float  # horizontal speed, m/s: constant by arc length, the maximum by phase
     duration: float  # s, from the pattern start
     climb_rate: float = 0.0  # m/s; 0 for the fixed-altitude patterns
     climb_to: float = 0.0  # m
@@ -176,12 +176,14 @@ def _patterns(cfg: TrajectoryConfig) -> list[_Pattern]:
 
 
 def _progress_rate(pattern: _Pattern) -> float:
-    """ds/dt at cruise: the speed for arc-length paths, speed / mean |dP/dphase| for phase paths."""
+    """ds/dt at cruise: the speed for arc-length paths; for phase paths the rate whose fastest
+    point is at that speed (a phase-timed lemniscate is 1.46 times faster at its crossing than
+    at its ends: timed by its mean speed it would fly well beyond cruise speed there)."""
     if not pattern.by_phase or pattern.speed == 0:
         return pattern.speed
     phases = torch.linspace(0, 2 * math.pi, 4097, dtype=torch.float64)[:-1]
     tangent = torch.vmap(torch.func.jacfwd(pattern.path))(phases)
-    return pattern.speed / tangent.norm(dim=-1).mean().item()
+    return pattern.speed / tangent.norm(dim=-1).max().item()
 
 
 def _tabulate(pattern: _Pattern, cfg: TrajectoryConfig, dt: float) -> Tensor:
