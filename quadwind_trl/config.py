@@ -150,6 +150,13 @@ class WindProfileConfig:
 
     reference_height_m: float = 10.0  # paper, z_ref
     max_horizontal_wind_m_s: float = 20.0  # paper, the cap on the horizontal wind magnitude
+    # what the cap clips: "mean" (the power-law profile, as the paper defines the cap) or
+    # "total" (mean plus gusts, truncating the gust distribution's upper tail)
+    cap_applies_to: Literal["mean", "total"] = "total"
+
+    def validate(self) -> None:
+        if self.cap_applies_to not in ("mean", "total"):
+            raise ValueError(f"WindProfileConfig.cap_applies_to={self.cap_applies_to!r}; allowed: 'mean', 'total'")
 
 
 @dataclass(frozen=True)

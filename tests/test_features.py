@@ -260,15 +260,15 @@ def test_real_hover_in_still_air_has_no_aero_residual():
     speed ramping from zero): the residual is ~0 while the vehicle is still slow."""
     cfg = EnvConfig(sensors=SensorConfig(enabled=False), turbulence=TurbulenceConfig(enabled=False))
     env = QuadWindEnv(cfg, batch_size=[1])
-    td = env.reset(TensorDict(scenario=make_scenarios(1, traj_id="loiter_circle_h", altitude_m=50.0, start_step=-1), batch_size=[1]))
+    td = env.reset(scenario=make_scenarios(1, traj_id="loiter_circle_h", altitude_m=50.0, start_step=-1))
     fx = make_extractor("horizontal")
     ch = {name: i for i, name in enumerate(fx.channels)}
     state = fx.init_state(1)
     for i in range(31):
         if i % 10 == 0:
             state, f = fx.step(state, {k: td[k] for k in fx.raw_keys})
-            if i > 0:  # the reset observation carries cmd_wrench = 0 (see docs/features.md)
-                for name in ("aero_N", "aero_E", "aero_U"):
-                    assert abs(float(f[0, ch[name]])) < 0.05, (i, name)
+            # the reset observation of an airborne start carries the PD wrench as its command
+            for name in ("aero_N", "aero_E", "aero_U"):
+                assert abs(float(f[0, ch[name]])) < 0.05, (i, name)
         td["action"] = torch.zeros(1, 4)
         td = env.step(td)["next"]

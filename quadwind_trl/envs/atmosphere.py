@@ -224,7 +224,8 @@ class Atmosphere:
             along, across, up = sigma[..., 0] * along, sigma[..., 1] * across, sigma[..., 2] * iso[..., 2]
             gust = torch.stack((c * along - s * across, s * along + c * across, up), -1)
             total = mean + gust
-        total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
+        if self.wind.cap_applies_to == "total":
+            total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
         state = dict(state, air_offset=state["air_offset"] + dt * mean)
         return mean, total, state
 

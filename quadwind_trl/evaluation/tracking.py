@@ -1,0 +1,51 @@
+"""Fly evaluation sweeps and tabulate tracking RMSE by wind level and by trajectory."""
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.envs import EnvBase
+
+from ..envs.runner import fly
+from ..envs.trajectories import TRAJECTORIES
+from ..regimes import EvalSweep
+from .grouping import group_stats
+
+
+def fly_sweep(
+    env: EnvBase,
+    scenarios: TensorDictBase,
+    policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
+    progress: bool = False,
+) -> TensorDict:
+    """Per-episode results of ``scenarios`` (their order): ``rmse_xy``, ``rmse_z``, ``rmse``
+    (combined), ``crashed``, alongside the scenario fields that label them."""
+    res = fly(env, scenarios, policy=policy, progress=progress)
+    out = scenarios.select("traj_id", "wind_speed_ref_m_s", "turb_intensity", "case_id", strict=False).clone()
+    out["rmse_xy"] = res.rmse_xy
+    out["rmse_z"] = res.rmse_z
+    out["rmse"] = res.rmse
+    out["crashed"] = res.crashed
+    return out
+
+
+def tracking_tables(episodes: TensorDictBase, metric: str = "rmse_xy") -> dict:
+    """JSON-ready summaries of ``metric``: overall, by wind level and by trajectory."""
+    values = episodes[metric]
+    by_wind = group_stats(values, episodes["wind_speed_ref_m_s"])
+    by_traj = group_stats(values, episodes["traj_id"])
+    return {
+        "metric": metric,
+        "all": group_stats(values, torch.zeros_like(values))[0.0].as_dict(),
+        "by_wind": {f"{k:g}": v.as_dict() for k, v in by_wind.items()},
+        "by_trajectory": {TRAJECTORIES[int(k)]: v.as_dict() for k, v in by_traj.items()},
+        "crashed": int(episodes["crashed"].sum()),
+    }
+
+
+def quick_subset(sweep: EvalSweep, scenarios: TensorDictBase) -> TensorDictBase:
+    """One seed and the middle intensity of a sweep: a small, still factorial, smoke subset."""
+    mid = sweep.intensities[len(sweep.intensities) // 2]
+    keep = (scenarios["seed_index"] == 0) & ((scenarios["turb_intensity"] - mid).abs() < 1e-6)
+    return scenarios[keep]

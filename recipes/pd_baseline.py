@@ -1,0 +1,61 @@
+"""Fly the paper's evaluation sweeps with the PD baseline alone and write the calibration tables.
+
+    python recipes/pd_baseline.py                          # horizontal 225, vertical 144, OOD 90
+    python recipes/pd_baseline.py --quick                  # a small smoke subset, short flights
+
+Writes ``results/pd_baseline.json`` (per-group statistics, with the command and config); the
+report (``recipes/report.py``) puts them beside the paper's PD columns in docs/results.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from quadwind_trl.config import EnvConfig, config_to_dict
+from quadwind_trl.envs import QuadWindEnv
+from quadwind_trl.evaluation.tracking import fly_sweep, quick_subset, tracking_tables
+from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.regimes import SWEEPS
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sweeps", nargs="+", default=list(SWEEPS), choices=list(SWEEPS))
+    parser.add_argument("--quick", action="store_true", help="one seed, one intensity, 20 s patterns")
+    parser.add_argument("--out", type=Path, default=Path("results/pd_baseline.json"))
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--compile", action="store_true", help="torch.compile the simulator step")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+
+    cfg = EnvConfig()
+    if args.quick:
+        cfg = replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=20.0, vertical_top_m=40.0))
+        print("--quick: horizontal patterns 20 s, vertical climbs to 40 m, one seed and intensity per sweep")
+    report = {"command": " ".join(sys.argv), "git_commit": git_commit(), "config": config_to_dict(cfg), "sweeps": {}}
+    for name in args.sweeps:
+        sweep = SWEEPS[name]
+        scenarios = sweep.scenarios()
+        if args.quick:
+            scenarios = quick_subset(sweep, scenarios)
+        env = QuadWindEnv(cfg, batch_size=[scenarios.batch_size[0]], compile_step=args.compile)
+        start = time.perf_counter()
+        episodes = fly_sweep(env, scenarios, progress=True)
+        wall = time.perf_counter() - start
+        tables = {m: tracking_tables(episodes, m) for m in ("rmse_xy", "rmse_z", "rmse")}
+        report["sweeps"][name] = {"episodes": scenarios.batch_size[0], "wall_time_s": wall, "tables": tables}
+        by_wind = tables["rmse_xy"]["by_wind"]
+        print(f"{name}: {scenarios.batch_size[0]} episodes in {wall:.0f} s; PD xy RMSE by wind: "
+              + ", ".join(f"U={k}: {v['mean']:.3f}" for k, v in by_wind.items()))
+    write_json(args.out, report)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
