@@ -1,0 +1,400 @@
+"""Wind-estimation metrics (paper, Section "Metrics"), their breakdowns, per-flight prediction
+sequences and the EMA post-filter sweep.
+
+Every metric takes estimates and labels ``[W, 2]`` (north, east) in m/s, one row per window:
+
+* ``per_window_vector_rmse``: ``sqrt(mean_i |v_hat_i - v_i|^2)`` over every window;
+* ``component_rmse_n/e`` and ``component_mean_rmse``: the RMSE of each component, and their mean;
+* ``per_flight_vector_rmse``: average the estimates *and* the labels over each flight's windows,
+  then the vector RMSE of those per-flight means across flights;
+* ``direction_mae_deg``: the mean unsigned angle between estimate and label (degrees);
+* ``corr_n/e``: Pearson correlation of each component;
+* ``vector_skill = 1 - RMSE_model / RMSE_ref``, ``RMSE_ref`` the vector RMSE of the best
+  constant wind for the whole evaluated set (the mean label vector, which minimises it);
+  ``speed_skill`` likewise on the speed ``|v|`` against the best constant speed (the mean speed);
+* ``altitude_speed_slope``: least-squares slope of speed on altitude (m/s per m), for the
+  predicted and the true speeds.
+
+Breakdowns group windows by the true wind speed at the window's last sample
+(``SPEED_BINS_M_S``), by the true altitude there (``ALTITUDE_BINS_M``) and by trajectory.
+Skill inside a breakdown keeps the *whole set's* reference constants (pass ``reference``).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import torch
+from torch import Tensor
+
+from ..modules.ema import EMAConfig, ema_scan
+from ..modules.estimator_loss import wind_angle
+
+SPEED_BINS_M_S: tuple[float, ...] = (0.0, 4.0, 8.0, 12.0, 16.0, math.inf)  # paper
+ALTITUDE_BINS_M: tuple[float, ...] = (0.0, 150.0, 300.0, 450.0, math.inf)  # paper
+TAU_SWEEP_S: tuple[float, ...] = (0.0, 0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0)  # 0 = raw
+
+#: the paper's figures (held-out test wind cases; vertical unseen LHS for the EMA numbers)
+PAPER = {
+    "horizontal": {
+        "per_window_vector_rmse": 1.05,
+        "component_mean_rmse": 0.74,
+        "per_flight_vector_rmse": 0.40,
+        "direction_mae_deg": 3.2,
+        "corr_n": 0.996,
+        "corr_e": 0.996,
+        "val_per_window_vector_rmse": 1.08,
+        "val_direction_mae_deg": 3.0,
+        "by_trajectory": {  # per-flight vector RMSE, direction MAE, test flights
+            "loiter_circle_h": (0.34, 3.0, 18),
+            "figure8_h": (0.41, 3.1, 20),
+            "cloverleaf_h": (0.43, 3.3, 20),
+            "lawnmower_h": (0.46, 3.3, 12),
+            "racetrack_h": (0.51, 3.2, 19),
+        },
+        "by_speed": {"0-4": (0.58, 5.3), ">16": (1.24, 2.1)},  # per-window RMSE, direction MAE
+    },
+    "vertical": {
+        "per_window_vector_rmse": 1.56,
+        "component_mean_rmse": 1.11,
+        "direction_mae_deg": 4.9,
+        "corr_n": 0.991,
+        "corr_e": 0.991,
+        "reference_vector_rmse": 11.26,
+        "vector_skill": 0.861,
+        "speed_skill": 0.899,
+        "by_altitude": {"0-150": (1.29, None), ">450": (1.70, None)},  # per-window RMSE
+        "direction_mae_deg_by_altitude": (4.8, 5.2),
+        "slope_pred": 6.9e-3,
+        "slope_true": 7.2e-3,
+        "by_trajectory_rmse_range": (1.44, 1.64),
+        "unseen_raw_rmse": 1.43,
+        "unseen_ema3_rmse": 1.30,
+        "unseen_raw_direction_mae_deg": 5.5,
+        "unseen_ema3_direction_mae_deg": 4.9,
+    },
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# scalar metrics
+# ---------------------------------------------------------------------------------------------
+
+
+def _f64(x: Tensor) -> Tensor:
+    return torch.as_tensor(x).to(torch.float64)
+
+
+def vector_rmse(pred: Tensor, true: Tensor) -> float:
+    """``sqrt(mean |pred - true|^2)`` over rows of ``[W, 2]``."""
+    d = _f64(pred) - _f64(true)
+    return float((d * d).sum(-1).mean().sqrt())
+
+
+def component_rmse(pred: Tensor, true: Tensor) -> tuple[float, float]:
+    """RMSE of the north and of the east component."""
+    d = _f64(pred) - _f64(true)
+    r = (d * d).mean(0).sqrt()
+    return float(r[0]), float(r[1])
+
+
+def direction_errors_deg(pred: Tensor, true: Tensor) -> Tensor:
+    """Unsigned angle between estimate and label, degrees, per row."""
+    return torch.rad2deg(wind_angle(_f64(pred), _f64(true)))
+
+
+def pearson(a: Tensor, b: Tensor) -> float:
+    """Pearson correlation of two 1-D samples (nan if either is constant)."""
+    a, b = _f64(a).flatten(), _f64(b).flatten()
+    a, b = a - a.mean(), b - b.mean()
+    den = (a.square().sum() * b.square().sum()).sqrt()
+    return float((a * b).sum() / den) if den > 0 else float("nan")
+
+
+def flight_means(values: Tensor, flight: Tensor) -> tuple[Tensor, Tensor]:
+    """``(ids, means)``: the mean of ``values`` ``[W, ...]`` over each distinct ``flight`` id."""
+    ids, inverse = torch.unique(flight, return_inverse=True)
+    v = _f64(values).reshape(values.shape[0], -1)
+    sums = torch.zeros(ids.numel(), v.shape[1], dtype=torch.float64).index_add_(0, inverse, v)
+    counts = torch.bincount(inverse, minlength=ids.numel()).to(torch.float64)
+    return ids, (sums / counts[:, None]).reshape(ids.numel(), *values.shape[1:])
+
+
+def per_flight_vector_rmse(pred: Tensor, true: Tensor, flight: Tensor) -> float:
+    """Vector RMSE across flights of (flight-averaged estimate - flight-averaged label)."""
+    _, p = flight_means(pred, flight)
+    _, t = flight_means(true, flight)
+    return vector_rmse(p, t)
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The best constant predictors of a set: its mean wind vector and its mean speed."""
+
+    vector: tuple[float, float]
+    speed: float
+
+    @classmethod
+    def fit(cls, true: Tensor) -> "Reference":
+        t = _f64(true)
+        m = t.mean(0)
+        return cls((float(m[0]), float(m[1])), float(t.norm(dim=-1).mean()))
+
+
+def skill(rmse_model: float, rmse_ref: float) -> float:
+    """``1 - rmse_model / rmse_ref`` (nan when the reference is exact)."""
+    return 1.0 - rmse_model / rmse_ref if rmse_ref > 0 else float("nan")
+
+
+def least_squares_slope(x: Tensor, y: Tensor) -> float:
+    """Slope of the least-squares line ``y = a + b x`` (nan if ``x`` is constant)."""
+    x, y = _f64(x).flatten(), _f64(y).flatten()
+    xc = x - x.mean()
+    den = xc.square().sum()
+    return float((xc * (y - y.mean())).sum() / den) if den > 0 else float("nan")
+
+
+def estimation_metrics(
+    pred: Tensor,
+    true: Tensor,
+    flight: Tensor | None = None,
+    altitude: Tensor | None = None,
+    reference: Reference | None = None,
+) -> dict[str, float]:
+    """All scalar metrics of windows ``pred``/``true`` ``[W, 2]`` (m/s).
+
+    ``flight`` ``[W]`` (ids) adds ``per_flight_vector_rmse``; ``altitude`` ``[W]`` (m) adds the
+    altitude-speed slopes; ``reference`` (default: fitted on ``true``) sets the skill baselines.
+    """
+    pred, true = _f64(pred), _f64(true)
+    w = pred.shape[0]
+    if w == 0:
+        return {"n_windows": 0}
+    ref = reference or Reference.fit(true)
+    rn, re = component_rmse(pred, true)
+    sp, st = pred.norm(dim=-1), true.norm(dim=-1)
+    ref_vec = torch.tensor(ref.vector, dtype=torch.float64).expand_as(true)
+    speed_rmse = float((sp - st).square().mean().sqrt())
+    out = {
+        "n_windows": w,
+        "per_window_vector_rmse": vector_rmse(pred, true),
+        "component_rmse_n": rn,
+        "component_rmse_e": re,
+        "component_mean_rmse": 0.5 * (rn + re),
+        "direction_mae_deg": float(direction_errors_deg(pred, true).mean()),
+        "corr_n": pearson(pred[:, 0], true[:, 0]),
+        "corr_e": pearson(pred[:, 1], true[:, 1]),
+        "speed_rmse": speed_rmse,
+        "speed_bias": float((sp - st).mean()),
+        "mean_true_speed": float(st.mean()),
+        "reference_vector_rmse": vector_rmse(ref_vec, true),
+        "reference_speed_rmse": float((st - ref.speed).square().mean().sqrt()),
+    }
+    out["vector_skill"] = skill(out["per_window_vector_rmse"], out["reference_vector_rmse"])
+    out["speed_skill"] = skill(speed_rmse, out["reference_speed_rmse"])
+    if flight is not None:
+        out["n_flights"] = int(torch.unique(flight).numel())
+        out["per_flight_vector_rmse"] = per_flight_vector_rmse(pred, true, flight)
+    if altitude is not None:
+        out["altitude_speed_slope_pred"] = least_squares_slope(altitude, sp)
+        out["altitude_speed_slope_true"] = least_squares_slope(altitude, st)
+    return out
+
+
+def bin_labels(edges: Sequence[float], unit: str = "") -> list[str]:
+    """``["0-4", "4-8", ..., ">16"]`` for edges ``(0, 4, 8, ..., inf)``."""
+    out = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        out.append(f">{lo:g}{unit}" if math.isinf(hi) else f"{lo:g}-{hi:g}{unit}")
+    return out
+
+
+def bin_index(values: Tensor, edges: Sequence[float]) -> Tensor:
+    """Bin of each value for bins ``[e_k, e_{k+1})`` (values below the first edge go to bin 0)."""
+    inner = torch.tensor(list(edges[1:-1]), dtype=torch.float64)
+    return torch.bucketize(_f64(values).contiguous(), inner, right=True)
+
+
+def breakdown(
+    pred: Tensor,
+    true: Tensor,
+    group: Tensor,
+    names: Sequence[str],
+    flight: Tensor | None = None,
+    altitude: Tensor | None = None,
+    reference: Reference | None = None,
+) -> dict[str, dict[str, float]]:
+    """``estimation_metrics`` of each group ``g`` (rows with ``group == g``), keyed ``names[g]``;
+    empty groups are left out. Skill uses ``reference`` (default: fitted on all rows)."""
+    ref = reference or Reference.fit(true)
+    out = {}
+    for g, name in enumerate(names):
+        m = group == g
+        if bool(m.any()):
+            out[name] = estimation_metrics(
+                pred[m], true[m], None if flight is None else flight[m], None if altitude is None else altitude[m], ref
+            )
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# per-flight prediction sequences
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class FlightSequences:
+    """Per-window estimates of whole flights, left-aligned: entry ``[i, k]`` is flight
+    ``flights[i]``'s window ending at sample ``crop_i + window - 1 + k * stride``; ``mask`` marks
+    real windows (the rest is padding after a flight's end)."""
+
+    flights: Tensor  # [n] dataset rows
+    pred: Tensor  # [n, L, 2] m/s
+    true: Tensor  # [n, L, 2] m/s (label at the window's last sample)
+    altitude: Tensor  # [n, L] true altitude at the window's last sample, m
+    wind: Tensor  # [n, L, 2] total (turbulent) horizontal wind there, (north, east), m/s
+    end: Tensor  # [n, L] sample index of the window's last sample
+    mask: Tensor  # [n, L] bool
+    traj_id: Tensor  # [n]
+    case_id: Tensor  # [n]
+    dt_s: float  # time between consecutive entries (stride x record dt)
+
+    def windows(self, pred: Tensor | None = None) -> dict[str, Tensor]:
+        """Flattened real windows: ``pred``, ``true``, ``altitude``, ``flight`` (row in this
+        object), ``traj_id``, ``case_id``. ``pred`` overrides the stored estimates (e.g. EMA)."""
+        m = self.mask
+        p = self.pred if pred is None else pred
+        row = torch.arange(self.flights.numel())[:, None].expand_as(m)
+        return {
+            "pred": p[m],
+            "true": self.true[m],
+            "altitude": self.altitude[m],
+            "flight": row[m],
+            "traj_id": self.traj_id[:, None].expand_as(m)[m],
+            "case_id": self.case_id[:, None].expand_as(m)[m],
+        }
+
+    def filtered(self, cfg: EMAConfig) -> Tensor:
+        """The EMA post-filter (``ema_scan``, the online code path) over each flight's sequence
+        of estimates; padding follows each flight's end, so it never reaches a real entry."""
+        return ema_scan(self.pred.to(torch.float32), cfg).to(self.pred.dtype)
+
+
+@torch.no_grad()
+def predict_flights(
+    predict: Callable[[Tensor], Tensor],
+    features: Tensor,
+    labels: Tensor,
+    altitude: Tensor,
+    flights: Tensor,
+    crop: Tensor,
+    length: Tensor,
+    traj_id: Tensor,
+    case_id: Tensor,
+    *,
+    wind: Tensor | None = None,
+    window: int = 60,
+    stride: int = 1,
+    batch_size: int = 4096,
+    record_dt_s: float = 0.1,
+    progress: bool = False,
+) -> FlightSequences:
+    """Run ``predict`` (raw feature windows ``[B, window, C]`` -> m/s ``[B, 2]``, e.g.
+    ``EstimatorBundle.predict``) on every window of ``flights`` (rows of the dataset) past their
+    crop, at ``stride`` (1: an estimate at every 10 Hz sample)."""
+    flights = torch.as_tensor(flights).long()
+    n = flights.numel()
+    first_end = crop[flights] + window - 1
+    count = torch.where(length[flights] - 1 >= first_end, (length[flights] - 1 - first_end) // stride + 1, 0)
+    lmax = int(count.max()) if n else 0
+    k = torch.arange(lmax)
+    mask = k[None, :] < count[:, None]
+    end = (first_end[:, None] + k[None, :] * stride).clamp_max(length[flights, None] - 1).clamp_min(0)
+    pred = torch.zeros(n, lmax, 2)
+    offsets = torch.arange(-(window - 1), 1)
+    rows = torch.arange(n)[:, None].expand_as(mask)[mask]
+    ends = end[mask]
+    it = range(0, rows.numel(), batch_size)
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(it, desc="estimating", unit="batch")
+    out = torch.empty(rows.numel(), 2)
+    for i in it:
+        r, e = rows[i : i + batch_size], ends[i : i + batch_size]
+        x = torch.as_tensor(features[flights[r][:, None], e[:, None] + offsets]).to(torch.float32)
+        out[i : i + batch_size] = predict(x).float().cpu()
+    pred[mask] = out
+    # pad after each flight's end with its last estimate (keeps filters finite; masked anyway)
+    last = (count - 1).clamp_min(0)
+    pad_val = pred[torch.arange(n), last]
+    pred = torch.where(mask[..., None], pred, pad_val[:, None, :])
+    fl = flights[:, None].expand_as(end)
+    true = torch.as_tensor(labels[fl, end]).float()
+    alt = torch.as_tensor(altitude[fl, end]).float()
+    w = torch.as_tensor(wind[fl, end]).float() if wind is not None else torch.full_like(true, float("nan"))
+    return FlightSequences(
+        flights=flights,
+        pred=pred,
+        true=true,
+        altitude=alt,
+        wind=w,
+        end=end,
+        mask=mask,
+        traj_id=torch.as_tensor(traj_id)[flights].long(),
+        case_id=torch.as_tensor(case_id)[flights].long(),
+        dt_s=stride * record_dt_s,
+    )
+
+
+def evaluate_sequences(
+    seq: FlightSequences,
+    trajectory_names: Sequence[str],
+    pred: Tensor | None = None,
+    reference: Reference | None = None,
+) -> dict:
+    """Summary, and breakdowns by true wind speed, altitude band and trajectory, of ``seq`` (or
+    of the override ``pred`` ``[n, L, 2]``, e.g. EMA-filtered)."""
+    w = seq.windows(pred)
+    ref = reference or Reference.fit(w["true"])
+    speed_bin = bin_index(w["true"].norm(dim=-1), SPEED_BINS_M_S)
+    alt_bin = bin_index(w["altitude"], ALTITUDE_BINS_M)
+    traj_ids = sorted(set(w["traj_id"].tolist()))
+    traj_group = torch.searchsorted(torch.tensor(traj_ids), w["traj_id"])
+    args = dict(flight=w["flight"], altitude=w["altitude"], reference=ref)
+    return {
+        "summary": estimation_metrics(w["pred"], w["true"], **args),
+        "reference": {"vector_n": ref.vector[0], "vector_e": ref.vector[1], "speed": ref.speed},
+        "by_speed": breakdown(w["pred"], w["true"], speed_bin, bin_labels(SPEED_BINS_M_S), **args),
+        "by_altitude": breakdown(w["pred"], w["true"], alt_bin, bin_labels(ALTITUDE_BINS_M), **args),
+        "by_trajectory": breakdown(
+            w["pred"], w["true"], traj_group, [trajectory_names[t] for t in traj_ids], **args
+        ),
+    }
+
+
+def ema_sweep(
+    seq: FlightSequences,
+    taus_s: Sequence[float] = TAU_SWEEP_S,
+    base: EMAConfig = EMAConfig(),
+) -> dict[float, dict[str, float]]:
+    """Summary metrics of the EMA-filtered estimates for each time constant (``0`` = raw),
+    scanning each flight's sequence of estimates with ``ema_scan`` at ``dt = seq.dt_s``."""
+    out = {}
+    w = seq.windows()
+    ref = Reference.fit(w["true"])
+    for tau in taus_s:
+        cfg = EMAConfig(
+            tau_s=float(tau), dt_s=seq.dt_s, spike_factor=base.spike_factor,
+            scale_tau_s=base.scale_tau_s, initial_scale=base.initial_scale,
+        )  # fmt: skip
+        filtered = seq.filtered(cfg)
+        fw = seq.windows(filtered)
+        out[float(tau)] = estimation_metrics(fw["pred"], fw["true"], fw["flight"], fw["altitude"], ref)
+    return out
+
+
+def best_tau(sweep: dict[float, dict[str, float]], key: str = "per_window_vector_rmse") -> float:
+    """The time constant with the lowest ``key``."""
+    return min(sweep, key=lambda t: sweep[t][key])
