@@ -76,7 +76,7 @@ class ControllerConfig:
     k_rate: tuple[float, float, float] = (3.5, 3.5, 2.0)  # paper, K_omega in N m s / rad
     max_tilt_deg: float = 35.0  # paper, commanded-tilt limit
     pos_error_limit_m: tuple[float, float, float] = (12.0, 12.0, 15.0)  # paper
-    feedback: Literal["truth", "sensors", "estimate"] = "truth"
+    feedback: Literal["truth", "sensors", "estimate"] = "estimate"
 
     def validate(self) -> None:
         _check_range("ControllerConfig", "max_tilt_deg", self.max_tilt_deg, 1.0, 89.0)
@@ -152,7 +152,7 @@ class WindProfileConfig:
     max_horizontal_wind_m_s: float = 20.0  # paper, the cap on the horizontal wind magnitude
     # what the cap clips: "mean" (the power-law profile, as the paper defines the cap) or
     # "total" (mean plus gusts, truncating the gust distribution's upper tail)
-    cap_applies_to: Literal["mean", "total"] = "total"
+    cap_applies_to: Literal["mean", "total"] = "mean"
 
     def validate(self) -> None:
         if self.cap_applies_to not in ("mean", "total"):
@@ -207,7 +207,7 @@ class SensorConfig:
     """
 
     enabled: bool = True
-    gps_pos: SensorChannelConfig = SensorChannelConfig(10.0, 0.7, 0.05)  # m
+    gps_pos: SensorChannelConfig = SensorChannelConfig(10.0, 0.7, 0.03)  # m
     gps_vel: SensorChannelConfig = SensorChannelConfig(10.0, 0.15, 0.005)  # m/s
     baro_alt: SensorChannelConfig = SensorChannelConfig(25.0, 0.8, 0.02)  # m
     attitude_rp: SensorChannelConfig = SensorChannelConfig(50.0, math.radians(0.6), math.radians(0.01))  # rad
@@ -230,7 +230,7 @@ class TrajectoryConfig:
     climb_rate_m_s: float = 3.0
     climb_blend_s: float = 3.0  # smooth start and stop of the climb
     speed_ramp_s: float = 5.0  # patterns start from hover and reach cruise speed over this
-    cruise_speed_m_s: float = 8.0
+    cruise_speed_m_s: float = 10.0
     horizontal_duration_s: float = 180.0
     loiter_radius_m: float = 60.0
     racetrack_straight_m: float = 240.0
@@ -238,7 +238,7 @@ class TrajectoryConfig:
     figure8_half_length_m: float = 100.0
     cloverleaf_radius_m: float = 100.0
     lawnmower_leg_m: float = 240.0
-    lawnmower_spacing_m: float = 40.0
+    lawnmower_spacing_m: float = 60.0
     lawnmower_legs: int = 8
     vertical_top_m: float = 600.0  # paper
     vertical_speed_m_s: float = 6.0  # horizontal speed of the vertical patterns

@@ -6,14 +6,18 @@ from dataclasses import replace
 import pytest
 import torch
 
-from quadwind_trl.config import EnvConfig, SensorConfig, TrajectoryConfig, TurbulenceConfig, WindProfileConfig
+from quadwind_trl.config import ControllerConfig, EnvConfig, SensorConfig, TrajectoryConfig, TurbulenceConfig, WindProfileConfig
 
 torch.set_num_threads(1)
 
 
 def quiet_config(**overrides) -> EnvConfig:
     """Truth feedback, no turbulence, no sensor noise: deterministic physics only."""
-    cfg = EnvConfig(sensors=SensorConfig(enabled=False), turbulence=TurbulenceConfig(enabled=False))
+    cfg = EnvConfig(
+        sensors=SensorConfig(enabled=False),
+        turbulence=TurbulenceConfig(enabled=False),
+        controller=ControllerConfig(feedback="truth"),
+    )
     return replace(cfg, **overrides)
 
 

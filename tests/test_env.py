@@ -210,15 +210,15 @@ def test_bad_config_fails_with_the_field_name():
 
 def test_pd_tracks_every_trajectory_in_still_air():
     """Centimetre tracking without wind: what is left is the drag-induced lag of a PD without
-    integral action (about 11 cm at 8 m/s: 1/2 rho CdA v^2 / (m Kp))."""
+    integral action (about 18 cm at the 10 m/s cruise speed: 1/2 rho CdA v^2 / (m Kp))."""
     cfg = quiet_config(trajectories=short_trajectories())
     env = QuadWindEnv(cfg, batch_size=[len(TRAJECTORIES)])
     sc = make_scenarios(len(TRAJECTORIES), traj_id=list(range(len(TRAJECTORIES))), altitude_m=20.0)
     res = fly(env, sc)
     assert not res.crashed.any()
     drag_lag = HALF_RHO * VEH.drag_area_xy_m2 * cfg.trajectories.cruise_speed_m_s**2 / (VEH.mass_kg * 5.0)
-    assert (res.rmse < 0.2).all(), dict(zip(TRAJECTORIES, res.rmse.tolist()))
-    assert res.rmse[0] > 0.5 * drag_lag  # the loiter circle shows the lag
+    assert (res.rmse < drag_lag + 0.05).all(), dict(zip(TRAJECTORIES, res.rmse.tolist()))
+    assert res.rmse[0] > 0.8 * drag_lag  # the loiter circle shows the lag
 
 
 def test_compiled_step_matches_eager():

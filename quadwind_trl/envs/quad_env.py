@@ -52,7 +52,9 @@ class QuadWindEnv(EnvBase):
 
     * ``meas`` [16]: the held sensor measurements (``SENSOR_CHANNELS``);
     * ``ref_pos``, ``ref_vel``, ``ref_acc`` [3], ``ref_yaw`` [1]: the reference now;
-    * ``pos_error`` [3]: measured position (GPS x, y and barometric altitude) minus reference;
+    * ``nav_pos``, ``nav_vel`` [3]: the autopilot's navigation solution that the PD flies on
+      (``ControllerConfig.feedback``: the truth, the raw sensors, or the navigation filter);
+    * ``pos_error`` [3]: ``nav_pos`` minus the reference: the tracking error the vehicle perceives;
     * ``pd_wrench`` [4]: the PD output the next action is added to; ``ff_wrench`` [4]: the
       correction applied over the last step; ``cmd_wrench`` [4]: the total command applied;
     * ``tilt_cmd`` [1] (rad), ``tilt_saturated`` [1]: the PD's commanded tilt and its limit flag;
@@ -101,6 +103,8 @@ class QuadWindEnv(EnvBase):
             ref_vel=_vec(n, 3, dev),
             ref_acc=_vec(n, 3, dev),
             ref_yaw=_vec(n, 1, dev),
+            nav_pos=_vec(n, 3, dev),
+            nav_vel=_vec(n, 3, dev),
             pos_error=_vec(n, 3, dev),
             pd_wrench=_vec(n, 4, dev),
             ff_wrench=_vec(n, 4, dev),
@@ -160,16 +164,16 @@ class QuadWindEnv(EnvBase):
     # --- helpers --------------------------------------------------------------------------------
 
     def _observation(self, s: dict[str, torch.Tensor]) -> TensorDict:
-        meas = s["meas"]
-        measured_pos = torch.cat((meas[..., 0:2], meas[..., 6:7]), -1)
         return TensorDict(
             {
-                "meas": meas,
+                "meas": s["meas"],
                 "ref_pos": s["ref_pos"],
                 "ref_vel": s["ref_vel"],
                 "ref_acc": s["ref_acc"],
                 "ref_yaw": s["ref_yaw"],
-                "pos_error": measured_pos - s["ref_pos"],
+                "nav_pos": s["nav.pos"],
+                "nav_vel": s["nav.vel"],
+                "pos_error": s["nav.pos"] - s["ref_pos"],
                 "pd_wrench": s["pd_wrench"],
                 "ff_wrench": s["ff"],
                 "cmd_wrench": s["cmd"],

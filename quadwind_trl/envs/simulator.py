@@ -180,6 +180,7 @@ class QuadSimulator:
         feedback = self.cfg.controller.feedback
         if feedback == "truth":
             nav = (state["pos"], state["vel"], rot, state["omega"])
+            out.update({"nav.pos": state["pos"], "nav.vel": state["vel"]})
         else:
             if feedback == "sensors":
                 estimate = {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6]}
