@@ -18,6 +18,7 @@ import time
 
 import torch
 
+from quadwind_trl.regimes import DATASET_SEED
 from quadwind_trl.data.generate import GenerationSpec, dataset_bytes, describe, generate_dataset, load_dataset, quick_spec
 
 
@@ -27,7 +28,9 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="tiny set: 3 cases, short flights (prints what changed)")
     parser.add_argument("--out", default=None, help="output directory (default data/flights_<regime>[_quick])")
     parser.add_argument("--cases", type=int, default=None, help="wind cases (default 1000; --quick: 3)")
-    parser.add_argument("--seed", type=int, default=0, help="LHS design seed")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="LHS design seed (default: the regime's training design, quadwind_trl.regimes.DATASET_SEED; "
+                             "DATASET_UNSEEN_SEED makes the independent design for generalisation tests)")
     parser.add_argument("--batch", type=int, default=2048, help="max env batch (balanced over chunks)")
     parser.add_argument("--compile", action="store_true", help="torch.compile the simulator step")
     parser.add_argument("--device", default="cpu")
@@ -36,14 +39,15 @@ def main() -> None:
     args = parser.parse_args()
     if args.threads is not None:
         torch.set_num_threads(args.threads)
+    seed = DATASET_SEED[args.regime] if args.seed is None else args.seed
 
     if args.quick:
-        spec, changes = quick_spec(args.regime, seed=args.seed, cases=args.cases or 3)
+        spec, changes = quick_spec(args.regime, seed=seed, cases=args.cases or 3)
         print("--quick changes from the paper-size dataset:")
         for line in changes:
             print(f"  {line}")
     else:
-        spec = GenerationSpec(regime=args.regime, cases=args.cases or 1000, seed=args.seed)
+        spec = GenerationSpec(regime=args.regime, cases=args.cases or 1000, seed=seed)
     out = args.out or f"data/flights_{args.regime}{'_quick' if args.quick else ''}"
     n = spec.cases * len(spec.trajectories)
     print(f"{args.regime}: {spec.cases} cases x {len(spec.trajectories)} trajectories = {n} flights -> {out}", flush=True)

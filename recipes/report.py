@@ -1,0 +1,38 @@
+"""Build docs/results.md from the result files the recipes wrote.
+
+    python recipes/report.py
+
+Reads ``results/*.json`` (PD baseline, ...) and the section files in ``docs/results/`` (written by
+the estimator and ablation recipes), and writes ``docs/results.md`` with the paper's figures
+beside ours.
+"""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from quadwind_trl.evaluation.report import build_report
+
+PREAMBLE = """# Results: ours beside the paper's
+
+Every number here was produced by a recipe in this repository; each section names its command
+and commit. Regenerate this page with `python recipes/report.py` after rerunning any stage
+(`python recipes/reproduce.py` runs them all). Machine: 2 CPU cores, no GPU.
+"""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--results", type=Path, default=Path("results"))
+    parser.add_argument("--sections", type=Path, default=Path("docs/results"))
+    parser.add_argument("--out", type=Path, default=Path("docs/results.md"))
+    args = parser.parse_args()
+    text = build_report(args.results, args.sections, PREAMBLE)
+    tmp = args.out.with_name(args.out.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(args.out)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
