@@ -131,6 +131,20 @@ def group_table(groups: dict[str, dict], label: str, paper: dict | None = None, 
     return table(header, rows)
 
 
+def floor_table(columns: dict[str, dict], estimates: dict[str, dict]) -> str:
+    """The turbulence floor beside the estimator's errors, per evaluated set."""
+    rows = []
+    for name, fl in columns.items():
+        if not fl:
+            continue
+        m = estimates[name]
+        rows.append([name, fmt(fl.get("turbulence_rmse_instantaneous")), fmt(fl.get("turbulence_rmse_window_mean")),
+                     fmt(m["per_window_vector_rmse"]), fmt(fl.get("turbulence_rmse_flight_mean")),
+                     fmt(m.get("per_flight_vector_rmse"))])  # fmt: skip
+    return table(["set", "true air vs label: instantaneous", "6 s window mean", "estimator per-window",
+                  "flight mean", "estimator per-flight"], rows)  # fmt: skip
+
+
 def sweep_table(sweep: dict[float, dict], best: float, deployed: float) -> str:
     rows = []
     for tau, m in sweep.items():
@@ -346,6 +360,21 @@ def main() -> None:
         f"Command: `{results['command']}`."
     )
     md += ["", f"### Summary (paper Table {'1' if regime == 'horizontal' else '3'})", "", summary_table(regime, cols), ""]
+    floors = {"test": t["turbulence_floor"]}
+    ests = {"test": t["summary"]}
+    if unseen is not None:
+        floors["unseen"], ests["unseen"] = results["unseen"]["turbulence_floor"], results["unseen"]["summary"]
+    md += [
+        "### Turbulence floor (vector RMSE, m/s, of the true total wind the vehicle flies through against the mean-wind label)", "",
+        "The labels exclude turbulence. A perfect sensor of the air velocity would score the floor columns against them, "
+        "averaged over the same 6 s window or over the flight. The estimator can beat the window-mean column: "
+        "the horizontal features' 10 s and 30 s trailing means average longer than 6 s. "
+        "The flight-mean column is, approximately, the floor of the per-flight error for any estimator "
+        "that perceives only the air along the flight path.", "",
+        floor_table(floors, ests), "",
+    ]  # fmt: skip
+    traj_floor = {k: f"{v.get('turbulence_rmse_flight_mean', float('nan')):.2f}" for k, v in t["turbulence_floor_by_trajectory"].items()}
+    md += ["Flight-mean turbulence floor by trajectory (m/s): " + ", ".join(f"{k} {v}" for k, v in traj_floor.items()) + ".", ""]
     if regime == "horizontal":
         traj_paper = {k: f"{v[0]:.2f} m/s, {v[1]:.1f} deg, {v[2]} flights" for k, v in paper["by_trajectory"].items()}
         md += ["### By trajectory (paper Table 2: per-flight RMSE, dir. MAE, test flights)", "", group_table(t["by_trajectory"], "trajectory", traj_paper), ""]

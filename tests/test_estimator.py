@@ -28,6 +28,7 @@ from quadwind_trl.evaluation.estimation import (
     pearson,
     per_flight_vector_rmse,
     predict_flights,
+    turbulence_floor,
     vector_rmse,
 )
 from quadwind_trl.modules.estimator_loss import EstimatorLoss, EstimatorLossConfig, wind_angle
@@ -83,6 +84,11 @@ def test_estimate_depends_only_on_its_window_and_on_its_last_sample():
     changed = run(last)
     assert not torch.allclose(changed[k], base[k])
     assert torch.equal(changed[k - 1], base[k - 1])  # earlier estimates never see a later sample
+    # the window-mean wind is the mean over exactly the window's samples
+    wind = torch.randn(1, 200, 2)
+    seq = predict_flights(bundle.predict, feats, labels, alt, ids, torch.tensor([0]), torch.tensor([200]), ids, ids, wind=wind)
+    torch.testing.assert_close(seq.wind_window[0, k], wind[0, end - 59 : end + 1].mean(0))
+    torch.testing.assert_close(seq.wind[0, k], wind[0, end])
     # the same numbers as calling the model on the window directly
     direct = bundle.predict(feats[:, end - 59 : end + 1])
     torch.testing.assert_close(base[k], direct[0])
@@ -278,6 +284,15 @@ def test_bins_and_breakdowns():
     assert r["by_trajectory"]["a"]["reference_vector_rmse"] == pytest.approx(math.sqrt((1 + 5) / 2))
     sweep = ema_sweep(seq, (0.0, 3.0))
     assert sweep[0.0]["per_window_vector_rmse"] == pytest.approx(math.sqrt(1.25))
+    # turbulence floor: total wind = label + (1, 0) at each window end, + (0, 2) over the window
+    assert r["turbulence_floor"]["turbulence_rmse_instantaneous"] == pytest.approx(0.0)  # wind := TRUE above
+    seq.wind = seq.true + torch.tensor([1.0, 0.0])
+    seq.wind_window = seq.true + torch.tensor([0.0, 2.0])
+    floor = turbulence_floor(seq)
+    assert floor["turbulence_rmse_instantaneous"] == pytest.approx(1.0)
+    assert floor["turbulence_rmse_window_mean"] == pytest.approx(2.0)
+    assert floor["turbulence_rmse_flight_mean"] == pytest.approx(1.0)
+    assert turbulence_floor(seq, torch.tensor([True, True, False, False]))["turbulence_rmse_flight_mean"] == pytest.approx(1.0)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -15,6 +15,10 @@ Every metric takes estimates and labels ``[W, 2]`` (north, east) in m/s, one row
 * ``altitude_speed_slope``: least-squares slope of speed on altitude (m/s per m), for the
   predicted and the true speeds.
 
+``turbulence_floor`` scores the true air velocity itself (instantaneous, window-mean and
+flight-mean total wind) against the label: the floor that the labels' exclusion of turbulence
+sets on the per-window and per-flight errors.
+
 Breakdowns group windows by the true wind speed at the window's last sample
 (``SPEED_BINS_M_S``), by the true altitude there (``ALTITUDE_BINS_M``) and by trajectory.
 Skill inside a breakdown keeps the *whole set's* reference constants (pass ``reference``).
@@ -259,6 +263,8 @@ class FlightSequences:
     traj_id: Tensor  # [n]
     case_id: Tensor  # [n]
     dt_s: float  # time between consecutive entries (stride x record dt)
+    wind_window: Tensor | None = None  # [n, L, 2] total wind averaged over each window's 60 samples
+
 
     def windows(self, pred: Tensor | None = None) -> dict[str, Tensor]:
         """Flattened real windows: ``pred``, ``true``, ``altitude``, ``flight`` (row in this
@@ -273,6 +279,8 @@ class FlightSequences:
             "flight": row[m],
             "traj_id": self.traj_id[:, None].expand_as(m)[m],
             "case_id": self.case_id[:, None].expand_as(m)[m],
+            "wind": self.wind[m],
+            "wind_window": self.wind_window[m] if self.wind_window is not None else None,
         }
 
     def filtered(self, cfg: EMAConfig) -> Tensor:
@@ -321,11 +329,16 @@ def predict_flights(
 
         it = tqdm(it, desc="estimating", unit="batch")
     out = torch.empty(rows.numel(), 2)
+    wout = torch.full((rows.numel(), 2), float("nan"))
     for i in it:
         r, e = rows[i : i + batch_size], ends[i : i + batch_size]
         x = torch.as_tensor(features[flights[r][:, None], e[:, None] + offsets]).to(torch.float32)
         out[i : i + batch_size] = predict(x).float().cpu()
+        if wind is not None:
+            wout[i : i + batch_size] = torch.as_tensor(wind[flights[r][:, None], e[:, None] + offsets]).float().mean(1)
     pred[mask] = out
+    wind_window = torch.full_like(pred, float("nan"))
+    wind_window[mask] = wout
     # pad after each flight's end with its last estimate (keeps filters finite; masked anyway)
     last = (count - 1).clamp_min(0)
     pad_val = pred[torch.arange(n), last]
@@ -345,7 +358,30 @@ def predict_flights(
         traj_id=torch.as_tensor(traj_id)[flights].long(),
         case_id=torch.as_tensor(case_id)[flights].long(),
         dt_s=stride * record_dt_s,
+        wind_window=wind_window if wind is not None else None,
     )
+
+
+def turbulence_floor(seq: FlightSequences, rows: Tensor | None = None) -> dict[str, float]:
+    """How far the air the vehicle flies through is from the mean-wind label (vector RMSE, m/s):
+    the total wind at each window's last sample (``instantaneous``), averaged over the window's
+    60 samples (``window_mean``) and over each flight's windows (``flight_mean``). An estimator
+    that knew the true air velocity perfectly, averaged that way, would score these: the
+    per-window and per-flight floors set by labels that exclude the turbulence (paper, "Problem
+    formulation"). ``rows`` (bool over the real windows) selects a subset. Empty if the
+    sequences carry no wind."""
+    w = seq.windows()
+    if rows is not None:
+        w = {k: (v[rows] if v is not None else None) for k, v in w.items()}
+    if w["wind"].shape[0] == 0 or not bool(torch.isfinite(w["wind"]).all()):
+        return {}
+    out = {
+        "turbulence_rmse_instantaneous": vector_rmse(w["wind"], w["true"]),
+        "turbulence_rmse_flight_mean": per_flight_vector_rmse(w["wind"], w["true"], w["flight"]),
+    }
+    if w["wind_window"] is not None and bool(torch.isfinite(w["wind_window"]).all()):
+        out["turbulence_rmse_window_mean"] = vector_rmse(w["wind_window"], w["true"])
+    return out
 
 
 def evaluate_sequences(
@@ -371,6 +407,10 @@ def evaluate_sequences(
         "by_trajectory": breakdown(
             w["pred"], w["true"], traj_group, [trajectory_names[t] for t in traj_ids], **args
         ),
+        "turbulence_floor": turbulence_floor(seq),
+        "turbulence_floor_by_trajectory": {
+            trajectory_names[t]: turbulence_floor(seq, w["traj_id"] == t) for t in traj_ids
+        },
     }
 
 
