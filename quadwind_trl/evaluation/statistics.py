@@ -1,0 +1,97 @@
+"""Paired statistics of the three-way ablation (paper, Sections "Baseline and the perception
+ablation" and "Evaluation protocol").
+
+All inputs are per-episode RMSEs of matched episodes (the same scenarios, identical replayed
+physics), one tensor per controller, aligned by episode.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import Tensor
+
+
+def improvement(baseline: Tensor, other: Tensor) -> float:
+    """Reduction in mean RMSE, percent: ``100 (1 - mean(other) / mean(baseline))``."""
+    return 100.0 * (1.0 - other.double().mean().item() / baseline.double().mean().item())
+
+
+def bootstrap_improvement_ci(
+    baseline: Tensor, other: Tensor, resamples: int = 10_000, level: float = 0.95, seed: int = 0
+) -> tuple[float, float]:
+    """Percentile bootstrap interval of :func:`improvement` over matched pairs: episodes are
+    resampled with replacement, each keeping its pair, so the pairing's correlation is kept."""
+    n = baseline.numel()
+    gen = torch.Generator().manual_seed(seed)
+    idx = torch.randint(0, n, (resamples, n), generator=gen)
+    b = baseline.double()[idx].mean(-1)
+    o = other.double()[idx].mean(-1)
+    stats = 100.0 * (1.0 - o / b)
+    alpha = (1.0 - level) / 2.0
+    lo, hi = torch.quantile(stats, torch.tensor([alpha, 1.0 - alpha], dtype=torch.float64)).tolist()
+    return lo, hi
+
+
+def win_rate(baseline: Tensor, other: Tensor) -> tuple[int, int]:
+    """Pairs in which ``other`` has strictly lower RMSE than ``baseline``, and the pair count."""
+    return int((other < baseline).sum()), baseline.numel()
+
+
+@dataclass(frozen=True)
+class Decomposition:
+    """The three-way split of an improvement, on group means (m and percent)."""
+
+    pd: float
+    blind: float
+    aware: float
+    improvement: float  # % of PD removed by the wind-aware policy
+    kinematic: float  # m: PD - wind-blind RL
+    perception: float  # m: wind-blind RL - wind-aware RL
+    kinematic_share: float  # % of the total improvement (PD - aware)
+    perception_share: float  # %
+    perception_relative: float  # % reduction from wind-blind to wind-aware RL
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def decompose(pd: Tensor, blind: Tensor, aware: Tensor) -> Decomposition:
+    """Kinematic and wind-perception components of the improvement, from matched episodes.
+
+    The components are additive by construction: ``(PD - blind) + (blind - aware) = PD - aware``;
+    the shares divide them by that total (a share is negative when a step made things worse).
+    """
+    m_pd, m_blind, m_aware = (x.double().mean().item() for x in (pd, blind, aware))
+    total = m_pd - m_aware
+    kin, perc = m_pd - m_blind, m_blind - m_aware
+    share = (lambda part: 100.0 * part / total) if total != 0 else (lambda part: float("nan"))
+    return Decomposition(
+        pd=m_pd,
+        blind=m_blind,
+        aware=m_aware,
+        improvement=100.0 * total / m_pd,
+        kinematic=kin,
+        perception=perc,
+        kinematic_share=share(kin),
+        perception_share=share(perc),
+        perception_relative=100.0 * perc / m_blind,
+    )
+
+
+def paired_summary(baseline: Tensor, other: Tensor, resamples: int = 10_000, seed: int = 0) -> dict:
+    """Mean +- std of both, improvement with its bootstrap 95 % interval, and the win count."""
+    lo, hi = bootstrap_improvement_ci(baseline, other, resamples=resamples, seed=seed)
+    wins, n = win_rate(baseline, other)
+    return {
+        "n": n,
+        "baseline_mean": baseline.double().mean().item(),
+        "baseline_std": baseline.double().std().item(),
+        "other_mean": other.double().mean().item(),
+        "other_std": other.double().std().item(),
+        "improvement": improvement(baseline, other),
+        "ci_low": lo,
+        "ci_high": hi,
+        "wins": wins,
+        "win_rate": wins / n,
+    }
