@@ -1,0 +1,141 @@
+"""Environment steps per second during PPO collection with the wind-estimator transform on, and
+where the time goes: simulation, estimator (network; and features + ring + EMA), the rest of the
+collection (transforms, policy, collector), and the PPO update on the collected batch.
+
+    python bench/collect_throughput.py                          # N = 256, 1024, 4096, 1 thread
+    python bench/collect_throughput.py --sizes 64 --threads 2
+
+Setup: the horizontal training env (``make_env``: ground starts, first-episode de-synchronisation,
+the full transform stack), the TanhNormal 2x256 actor in RANDOM mode, TorchRL ``Collector``; the
+estimator is the shipped one if present, else an untrained one of the same architecture (same cost).
+Each size runs one warm-up batch, then ``--batches`` timed batches of ``N x --steps`` frames
+(``--steps`` a multiple of 10, so every row ticks the estimator equally often), then one PPO update
+(GAE + 10 epochs of 512-sample minibatches) on the last batch.
+
+One parseable line per size:
+``collect_throughput N=... steps=... threads=... env_steps_per_s=... collect_s=... sim_s=...
+estimator_net_s=... estimator_all_s=... other_s=... update_s=... update_frames_per_s=...
+share_sim=... share_estimator=... share_other=... share_update=...`` (shares of collect + update).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import torch
+
+
+def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dict:
+    from torchrl.collectors import Collector
+    from torchrl.envs.utils import ExplorationType
+    from torchrl.objectives import ClipPPOLoss
+    from torchrl.objectives.value import GAE
+
+    from quadwind_trl.rl.envs import default_estimator_path, load_estimator, make_env, wind_estimate
+    from quadwind_trl.rl.ppo import PPOConfig, PPOTrainer, build_actor_critic
+    from quadwind_trl.rl.envs import RLEnvSpec
+
+    torch.manual_seed(0)
+    path = estimator_path or (str(default_estimator_path("horizontal")) if default_estimator_path("horizontal").exists() else None)
+    bundle = load_estimator("horizontal", path, untrained=path is None)
+    hint = PPOTrainer(RLEnvSpec("horizontal"), PPOConfig(), "/nonexistent")._episode_steps_hint()
+    env = make_env("horizontal", bundle, n, desync_steps=hint)
+    base = env.base_env
+    sim_time = [0.0]
+    raw_step = base._sim_step
+
+    def timed_step(state, action):
+        t0 = time.perf_counter()
+        out = raw_step(state, action)
+        sim_time[0] += time.perf_counter() - t0
+        return out
+
+    base._sim_step = timed_step
+    west = wind_estimate(env)
+    tick_time = [0.0]
+    raw_tick = west._tick
+
+    def timed_tick(record, mask):
+        t0 = time.perf_counter()
+        raw_tick(record, mask)
+        tick_time[0] += time.perf_counter() - t0
+
+    west._tick = timed_tick
+    cfg = PPOConfig()
+    actor, value = build_actor_critic(cfg)
+    collector = Collector(env, actor, frames_per_batch=n * steps, total_frames=n * steps * (batches + 1),
+                          exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
+    it = iter(collector)
+    next(it)  # warm-up
+    sim_time[0] = tick_time[0] = 0.0
+    west.estimator_seconds = 0.0
+    t0 = time.perf_counter()
+    data = None
+    for _ in range(batches):
+        data = next(it)
+    collect_s = time.perf_counter() - t0
+    sim_s, est_all_s, est_net_s = sim_time[0], tick_time[0], west.estimator_seconds
+    collector.shutdown()
+
+    loss = ClipPPOLoss(actor, value, clip_epsilon=0.2, entropy_coeff=0.005, critic_coeff=0.5, loss_critic_type="l2",
+                       normalize_advantage=True)
+    gae = GAE(gamma=0.99, lmbda=0.95, value_network=value)
+    optim = torch.optim.Adam(loss.parameters(), lr=3e-4, eps=1e-5)
+    keys = ("observation", "action", "action_log_prob", ("next", "observation"), ("next", "reward"),
+            ("next", "done"), ("next", "terminated"), ("next", "truncated"))
+    t0 = time.perf_counter()
+    batch = data.select(*keys)
+    with torch.no_grad():
+        gae(batch)
+    flat = batch.reshape(-1)
+    for _ in range(cfg.epochs):
+        for idx in torch.randperm(flat.batch_size[0]).split(cfg.minibatch):
+            out = loss(flat[idx])
+            optim.zero_grad()
+            (out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]).backward()
+            torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
+            optim.step()
+    update_s = time.perf_counter() - t0
+    frames = n * steps * batches
+    # the update runs once per batch in training: scale it to the timed batches
+    update_total = update_s * batches
+    total = collect_s + update_total
+    other_s = collect_s - sim_s - est_all_s
+    return {
+        "N": n,
+        "steps": steps,
+        "threads": torch.get_num_threads(),
+        "env_steps_per_s": round(frames / collect_s),
+        "collect_s": round(collect_s, 2),
+        "sim_s": round(sim_s, 2),
+        "estimator_net_s": round(est_net_s, 2),
+        "estimator_all_s": round(est_all_s, 2),
+        "other_s": round(other_s, 2),
+        "update_s": round(update_total, 2),
+        "update_frames_per_s": round(n * steps / update_s),
+        "share_sim": round(sim_s / total, 3),
+        "share_estimator": round(est_all_s / total, 3),
+        "share_other": round(other_s / total, 3),
+        "share_update": round(update_total / total, 3),
+        "estimator": "shipped" if path else "untrained(same-architecture)",
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sizes", type=int, nargs="+", default=[256, 1024, 4096])
+    parser.add_argument("--steps", type=int, default=20, help="steps per env per batch (multiple of 10)")
+    parser.add_argument("--batches", type=int, default=2, help="timed batches per size")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--estimator", default=None, help="estimator checkpoint (default: shipped, else untrained)")
+    args = parser.parse_args()
+    if args.steps % 10:
+        parser.error("--steps must be a multiple of 10 (the estimator ticks every 10 control steps)")
+    torch.set_num_threads(args.threads)
+    for n in args.sizes:
+        r = measure(n, args.steps, args.batches, args.estimator)
+        print("collect_throughput " + " ".join(f"{k}={v}" for k, v in r.items()), flush=True)
+
+
+if __name__ == "__main__":
+    main()

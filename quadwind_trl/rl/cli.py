@@ -1,0 +1,131 @@
+"""What the two PPO recipes share: their arguments, the ``--quick`` configuration, and the run.
+
+The recipes (``recipes/ppo_horizontal.py``, ``recipes/ppo_vertical_curriculum.py``) only call
+:func:`build_parser` and :func:`run`; nothing here reads ``sys.argv`` by itself.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from ..config import TrajectoryConfig
+from .envs import DEFAULT_RANGES, RLEnvSpec, default_estimator_path, load_estimator, regime_config
+from .ppo import PPOConfig, PPOTrainer, default_eval_scenarios, vertical_curriculum
+
+DEFAULT_EVAL_EPISODES = {"horizontal": 10, "vertical": 8}
+# frames between evaluations: a vertical evaluation flies up to 30,900 steps (~5 min), a horizontal
+# one 21,740 (~3.5 min) at ~10 ms per step on this 2-core machine
+DEFAULT_EVAL_EVERY = {"horizontal": 1_000_000, "vertical": 1_500_000}
+
+
+def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--quick", action="store_true", help="tiny smoke run (seconds): short flights, few envs and frames")
+    p.add_argument("--estimator", default=None,
+                   help=f"estimator checkpoint (default: the shipped {default_estimator_path(regime)})")
+    p.add_argument("--untrained-estimator", action="store_true",
+                   help="use a seeded random estimator when no checkpoint is given (smoke tests only)")
+    p.add_argument("--total-frames", type=int, default=None, help="env steps to train for (default 3,000,000)")
+    p.add_argument("--num-envs", type=int, default=None, help="parallel sub-envs (default 64)")
+    p.add_argument("--steps-per-env", type=int, default=None,
+                   help="steps per sub-env per batch (default 256: 64 x 256 = 16384 = the paper's 8 envs x 2048)")
+    p.add_argument("--out", default=None, help=f"run directory (default runs/ppo_{regime}[_quick])")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
+    p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--device", default="cpu")
+    p.add_argument("--wind-input", default="estimate", choices=["estimate", "zero", "truth"],
+                   help="what the policy's wind channels carry during training (paper: estimate)")
+    p.add_argument("--eval-every", type=int, default=None,
+                   help=f"frames between evaluations against PD, 0: only at the end (default {DEFAULT_EVAL_EVERY[regime]:,})")
+    p.add_argument("--eval-episodes", type=int, default=None,
+                   help=f"episodes of the periodic evaluation, 0: none (default {DEFAULT_EVAL_EPISODES[regime]})")
+    p.add_argument("--logger", default="csv", choices=["csv", "tensorboard"])
+    p.add_argument("--no-progress", action="store_true")
+    return p
+
+
+def quick_setup(regime: str, spec: RLEnvSpec) -> tuple[RLEnvSpec, PPOConfig, list[str]]:
+    """The ``--quick`` run: short flights at low altitude, 8 envs, 4 tiny iterations."""
+    base = spec.env_config
+    if regime == "horizontal":
+        traj = replace(TrajectoryConfig(), horizontal_duration_s=5.0)
+        ranges = replace(DEFAULT_RANGES[regime], altitude_m=(10.0, 10.0))
+    else:
+        traj = replace(TrajectoryConfig(), vertical_top_m=10.0, vertical_hold_s=1.0)
+        ranges = DEFAULT_RANGES[regime]
+    spec = replace(spec, config=replace(base, trajectories=traj), ranges=ranges, num_envs=8)
+    cfg = PPOConfig(total_frames=4 * 8 * 32, num_envs=8, steps_per_env=32, epochs=2, minibatch=128,
+                    eval_every_frames=0, checkpoint_every_frames=2 * 8 * 32)
+    changes = [
+        f"flights: {'pattern 5 s at 10 m' if regime == 'horizontal' else 'climb to 10 m, 1 s hold'}",
+        "PPO: 8 envs x 32 steps, 4 iterations, 2 epochs, minibatch 128; evaluation: 1 episode from the pattern start",
+    ]
+    return spec, cfg, changes
+
+
+def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> dict:
+    """Build the env spec, PPO config, evaluation set and (vertical) curriculum from ``args``;
+    train; print and return the final manifest."""
+    torch.set_num_threads(args.threads)
+    spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
+                     estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
+                     config=regime_config(regime))
+    if args.quick:
+        spec, cfg, changes = quick_setup(regime, spec)
+        print("--quick changes from the full run:")
+        for line in changes:
+            print(f"  {line}")
+    else:
+        cfg = PPOConfig(eval_every_frames=DEFAULT_EVAL_EVERY[regime])
+    overrides = {"seed": args.seed, "threads": args.threads}
+    for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
+                      ("eval_every", "eval_every_frames")):
+        if getattr(args, arg) is not None:
+            overrides[name] = getattr(args, arg)
+    cfg = replace(cfg, **overrides).validate()
+    spec = replace(spec, num_envs=cfg.num_envs)
+
+    # fail early on a missing estimator, with the message naming the options
+    bundle = None
+    if spec.wind_input != "truth" or spec.estimator_path is not None:
+        try:
+            bundle = load_estimator(regime, spec.estimator_path, untrained=spec.untrained_estimator,
+                                    config=spec.env_config, device=spec.device)
+        except (FileNotFoundError, ValueError) as err:
+            raise SystemExit(f"error: {err}") from None
+
+    episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else DEFAULT_EVAL_EPISODES[regime])
+    scenarios = default_eval_scenarios(regime, episodes) if episodes > 0 else None
+    if args.quick and scenarios is not None:
+        scenarios["start_step"] = torch.full_like(scenarios["start_step"], -1)
+        if regime == "horizontal":
+            scenarios["altitude_m"] = torch.full_like(scenarios["altitude_m"], 10.0)
+    out = Path(args.out or f"runs/ppo_{regime}{'_quick' if args.quick else ''}")
+    trainer = PPOTrainer(
+        spec, cfg, out,
+        eval_scenarios=scenarios,
+        curriculum=vertical_curriculum(spec.trajectories) if curriculum else None,
+        logger=args.logger,
+        progress=not args.no_progress,
+        estimator_bundle=bundle,
+    )  # fmt: skip
+    t0 = time.perf_counter()
+    try:
+        result = trainer.train(resume=args.resume)
+    except (FileExistsError, FileNotFoundError) as err:  # --resume mistakes
+        raise SystemExit(f"error: {err}") from None
+    manifest = json.loads((out / "policy.json").read_text())
+    m = manifest["metrics"]
+    print(f"done: {result.frames} frames, {result.iterations} iterations, {time.perf_counter() - t0:.0f} s this session "
+          f"({result.wall_time_s:.0f} s in total) -> {out / 'policy.pt'}")
+    if m:
+        print(f"last evaluation: rmse {m['rmse']:.3f} m vs PD {m['pd_rmse']:.3f} m "
+              f"({m['improvement_vs_pd']:+.1f} %; xy {m['improvement_rmse_xy_pct']:+.1f} %, z {m['improvement_rmse_z_pct']:+.1f} %), "
+              f"win rate {m['win_rate']:.2f}, crashed {m['crashed']}")
+    return manifest

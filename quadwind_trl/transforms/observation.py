@@ -1,0 +1,103 @@
+"""The paper's 23-dimensional policy observation (Section "Observation"), built from the sensors.
+
+=======  ======================  ================================================================
+index    name                    source
+=======  ======================  ================================================================
+0        alt                     barometric altitude (m)
+1-3      vel_E, vel_N, vel_U     GPS velocity, world ENU (m/s)
+4-6      acc_bx, acc_by, acc_bz  body kinematic acceleration from the accelerometer and the
+                                 measured attitude, ``f_b - R^T (0, 0, g)`` (m/s^2)
+7-9      roll, pitch, yaw_err    measured attitude (rad); yaw relative to the reference heading,
+                                 wrapped to [-pi, pi) (the estimator features' choice,
+                                 docs/features.md)
+10-12    rate_p, rate_q, rate_r  gyro body rates (rad/s)
+13-14    wind_N, wind_E          ``wind_hat`` (m/s): the estimate, the oracle, or zero
+15-17    err_E, err_N, err_U     the env's ``pos_error``: the autopilot's navigation solution minus
+                                 the reference (m); with the default
+                                 ``ControllerConfig.feedback="estimate"`` a filter over GPS,
+                                 barometer and accelerometer (the error the PD itself flies on)
+18       pd_thrust_over_weight   the PD collective thrust this step's residual is added to / (m g)
+19-22    ff_T, ff_x, ff_y, ff_z  the previously applied feedforward correction divided by the
+                                 action scale (10 N, 5, 5, 5 N m): dimensionless, in [-1, 1]
+=======  ======================  ================================================================
+
+Channels 0-12 are computed by the estimator feature extractor's own code (the first 13 channels of
+:class:`~quadwind_trl.data.features.FeatureExtractor`, evaluated at every control step), so the
+policy and the estimator see identical definitions. Everything comes from the sensors, the
+reference and the controller's own outputs: no simulator truth enters the observation (except
+``wind_hat`` under the oracle ``source="truth"``, and ``pos_error`` if the env's controller is
+configured to fly on the truth, ``ControllerConfig.feedback="truth"``). Velocities are the raw GPS
+ones, as in the estimator features.
+"""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import Transform
+
+from ..config import GRAVITY_M_S2, EnvConfig
+from ..data.features import FeatureExtractor, kinematic_channels
+from .wind import WIND_KEY
+
+OBSERVATION_CHANNELS: tuple[str, ...] = kinematic_channels("ref_relative") + (
+    "wind_N", "wind_E",
+    "err_E", "err_N", "err_U",
+    "pd_thrust_over_weight",
+    "ff_T", "ff_x", "ff_y", "ff_z",
+)  # fmt: skip
+OBSERVATION_DIM = len(OBSERVATION_CHANNELS)
+WIND_INDICES: tuple[int, int] = (13, 14)
+assert OBSERVATION_DIM == 23
+assert OBSERVATION_CHANNELS[WIND_INDICES[0]] == "wind_N" and OBSERVATION_CHANNELS[WIND_INDICES[1]] == "wind_E"
+
+
+class PolicyObservation(Transform):
+    """Concatenates the 23 policy inputs into ``out_key`` (default ``"observation"``).
+
+    Reads ``meas``, ``ref_pos``, ``ref_yaw``, ``pos_error``, ``pd_wrench``, ``ff_wrench`` and
+    ``wind_key`` (``"wind_hat"``, written by :class:`~quadwind_trl.transforms.wind.WindEstimate`);
+    leaves them in place. Stateless.
+    """
+
+    def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = "observation"):
+        cfg = config or EnvConfig()
+        in_keys = ["meas", "ref_pos", "ref_yaw", "pos_error", "pd_wrench", "ff_wrench", wind_key]
+        super().__init__(in_keys=in_keys, out_keys=[out_key])
+        self.wind_key, self.out_key = wind_key, out_key
+        # the kinematic block through the feature code itself (a stateless vertical-schema step;
+        # its 13 first channels are the shared kinematic channels)
+        self._kin = FeatureExtractor("vertical", mass_kg=cfg.vehicle.mass_kg, log_dt_s=cfg.timing.log_dt_s)
+        self.weight_n = cfg.vehicle.mass_kg * GRAVITY_M_S2
+        self.register_buffer("action_scale", torch.tensor(cfg.residual.action_scale, dtype=torch.float32), persistent=False)
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        meas = next_tensordict.get("meas")
+        n = meas.shape[0]
+        record = {k: next_tensordict.get(k) for k in ("meas", "ref_pos", "ref_yaw")}
+        _, feats = self._kin.step(self._kin.init_state(n, meas.device), record)
+        ff = next_tensordict.get("ff_wrench") / self.action_scale.to(meas.device)
+        obs = torch.cat(
+            (
+                feats[..., :13],
+                next_tensordict.get(self.wind_key),
+                next_tensordict.get("pos_error"),
+                next_tensordict.get("pd_wrench")[..., :1] / self.weight_n,
+                ff,
+            ),
+            -1,
+        )
+        next_tensordict.set(self.out_key, obs)
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        observation_spec[self.out_key] = Unbounded(
+            shape=(*observation_spec.shape, OBSERVATION_DIM), device=observation_spec.device
+        )
+        return observation_spec

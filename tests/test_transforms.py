@@ -1,0 +1,301 @@
+"""The wind-aware transform stack: specs, one feature code path online/offline, per-row resets,
+the frozen estimator, the WindZero ablation and the zero-action = PD invariant."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+import torch
+from tensordict import TensorDict
+from torchrl.envs import Compose, TransformedEnv
+from torchrl.envs.utils import check_env_specs
+
+from quadwind_trl.config import EnvConfig, TrajectoryConfig
+from quadwind_trl.data.features import make_extractor
+from quadwind_trl.envs import QuadWindEnv, ScenarioSampler, make_scenarios
+from quadwind_trl.envs.runner import fly
+from quadwind_trl.modules.ema import EMAConfig, ema_scan
+from quadwind_trl.rl.envs import make_env, untrained_estimator, vecnorm, wind_estimate
+from quadwind_trl.transforms import (
+    OBSERVATION_CHANNELS,
+    OBSERVATION_DIM,
+    WIND_INDICES,
+    EpisodeControl,
+    FeatureHistory,
+    PolicyObservation,
+    WindEstimate,
+    WindZero,
+)
+
+RAW = ("meas", "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
+
+
+def short_config(w_z: float = 1.0) -> EnvConfig:
+    """Full sensors and turbulence, short flights at low altitude (tests must be quick)."""
+    cfg = EnvConfig(trajectories=TrajectoryConfig(horizontal_duration_s=4.0, vertical_top_m=10.0, vertical_hold_s=1.0))
+    return replace(cfg, reward=replace(cfg.reward, w_z=w_z))
+
+
+def scenarios(n: int, traj=("figure8_h", "lawnmower_h", "racetrack_h"), altitude=6.0, **kw):
+    traj = [traj[i % len(traj)] for i in range(n)]
+    return make_scenarios(
+        n, traj_id=traj, altitude_m=altitude, wind_speed_ref_m_s=[6.0 + i for i in range(n)], wind_dir_deg=[40.0 * i for i in range(n)],
+        turb_intensity=0.15, turb_seed=[11 + i for i in range(n)], sensor_seed=[21 + i for i in range(n)], **kw,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def bundle():
+    return untrained_estimator("horizontal", seed=0, config=short_config())
+
+
+def test_observation_layout():
+    assert OBSERVATION_DIM == 23 and len(OBSERVATION_CHANNELS) == 23
+    assert WIND_INDICES == (13, 14)
+    assert OBSERVATION_CHANNELS[:13] == make_extractor("horizontal").channels[:13]
+    assert OBSERVATION_CHANNELS[15:] == ("err_E", "err_N", "err_U", "pd_thrust_over_weight", "ff_T", "ff_x", "ff_y", "ff_z")
+
+
+@pytest.mark.parametrize("wind_input", ["estimate", "zero", "truth"])
+def test_transformed_env_passes_check_env_specs(bundle, wind_input):
+    env = make_env("horizontal", bundle, 3, wind_input=wind_input, config=short_config(), desync_steps=5)
+    check_env_specs(env)
+    assert env.observation_spec["observation"].shape == (3, OBSERVATION_DIM)
+    assert env.observation_spec["wind_hat"].shape == (3, 2)
+
+
+def test_vertical_env_and_schema_mismatch(bundle):
+    vb = untrained_estimator("vertical", config=short_config(0.5))
+    env = make_env("vertical", vb, 2, config=short_config(0.5))
+    check_env_specs(env)
+    with pytest.raises(ValueError, match="schema"):
+        make_env("vertical", bundle, 2)
+
+
+def test_each_transform_alone():
+    """FeatureHistory, WindEstimate(truth), PolicyObservation and WindZero on a bare env."""
+    cfg = short_config()
+    for transforms in (
+        [FeatureHistory("horizontal", config=cfg)],
+        [WindEstimate(source="truth", config=cfg), PolicyObservation(cfg), WindZero()],
+        [WindEstimate(source="truth", config=cfg), WindZero(in_key="wind_hat")],
+        [EpisodeControl(3)],
+    ):
+        env = TransformedEnv(QuadWindEnv(cfg, batch_size=[2]), Compose(*transforms))
+        check_env_specs(env)
+
+
+@torch.no_grad()
+def test_online_features_and_estimates_equal_offline(bundle):
+    """Flying through FeatureHistory + WindEstimate gives, at every 10 Hz tick, exactly (bitwise)
+    the offline ``scan`` features of the same flight's record; the estimator input windows are
+    the offline windows (left-padded by repeating the first sample) and ``wind_hat`` is the EMA of
+    the estimator's outputs on them (to 1e-5: the estimator batches rows differently)."""
+    cfg = short_config()
+    n = 3
+    env = TransformedEnv(
+        QuadWindEnv(cfg, batch_size=[n]),
+        Compose(FeatureHistory("horizontal", config=cfg), WindEstimate(bundle, config=cfg)),
+    )
+    res = fly(env, scenarios(n), log_keys=RAW + ("step", "features", "wind_hat"))
+    log = res.log
+    valid = log["valid"]
+    assert bool(valid.all()), "same-length flights expected"
+    assert log.batch_size[1] > 60  # longer than the estimator window
+    fx = make_extractor("horizontal", cfg)
+    offline = fx.scan({k: log[k] for k in fx.raw_keys})
+    assert torch.equal(log["features"], offline)
+
+    # the estimator's windows and the filtered estimate
+    t_len = offline.shape[1]
+    idx = torch.arange(t_len)[:, None] + torch.arange(-59, 1)[None, :]  # [T, 60]
+    padded = offline[:, idx.clamp_min(0)]  # left padding = the first sample repeated
+    preds = bundle.predict(padded.reshape(n * t_len, 60, -1)).reshape(n, t_len, 2)
+    expected = ema_scan(preds, EMAConfig(tau_s=bundle.ema_tau_s, dt_s=cfg.timing.log_dt_s))
+    torch.testing.assert_close(log["wind_hat"], expected, atol=1e-5, rtol=1e-5)
+
+
+@torch.no_grad()
+def test_online_features_equal_offline_with_staggered_rows():
+    """A row restarted between ticks ticks on other control steps than the rest: every row's
+    online features still equal (bitwise) the offline scan of its own flight record."""
+    cfg = short_config()
+    fx = make_extractor("horizontal", cfg)
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[3]), FeatureHistory(fx, config=cfg))
+    rec = {i: [] for i in range(3)}
+
+    def log(td, rows):
+        for i in rows:
+            if int(td["step"][i]) % 10 == 0:
+                rec[i].append(td[i].select(*fx.raw_keys, "features").clone())
+
+    td = env.reset(scenario=scenarios(3))
+    log(td, range(3))
+    for k in range(425):
+        if k == 25:  # restart row 1 (on another trajectory and wind) at a non-tick step
+            td["_reset"] = torch.tensor([[False], [True], [False]])
+            td = env.reset(td, scenario=scenarios(3, traj=("cloverleaf_h",), start_step=0))
+            rec[1] = []
+            log(td, [1])
+        td["action"] = torch.full((3, 4), 0.2)
+        td = env.step(td)["next"]
+        log(td, range(3))
+    for i in range(3):
+        flight = torch.stack(rec[i])
+        offline = fx.scan({k: flight[k].unsqueeze(0) for k in fx.raw_keys})[0]
+        assert torch.equal(flight["features"], offline), i
+    assert len(rec[1]) == 41 and len(rec[0]) == 43
+
+
+def test_history_and_ema_reset_only_masked_rows(bundle):
+    cfg = short_config()
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[3]), Compose(FeatureHistory("horizontal", config=cfg),
+                                                                WindEstimate(bundle, config=cfg)))
+    td = env.reset(scenario=scenarios(3))
+    for _ in range(35):  # 3 more ticks after the first
+        td["action"] = torch.zeros(3, 4)
+        td = env.step(td)["next"]
+    hist, west = env.transform[0], env.transform[1]
+    before = {
+        "buf": hist.ring.buf.clone(), "ptr": hist.ring.ptr.clone(), "count": hist.ring.count.clone(),
+        "sum": hist.ring.fx_state["sum_long"].clone(), "ebuf": west.ring.buf.clone(),
+        "ema": {k: v.clone() for k, v in west.ema_state.items()}, "value": west.value.clone(),
+    }  # fmt: skip
+    assert before["count"].tolist() == [4, 4, 4]
+    mask = torch.tensor([False, True, False])
+    td["_reset"] = mask.unsqueeze(-1)  # as a collector resets: the current data plus the mask
+    out = env.reset(td, scenario=scenarios(3))
+    keep = ~mask
+    assert torch.equal(hist.ring.buf[keep], before["buf"][keep]) and torch.equal(west.ring.buf[keep], before["ebuf"][keep])
+    assert torch.equal(hist.ring.ptr[keep], before["ptr"][keep]) and torch.equal(hist.ring.count[keep], before["count"][keep])
+    assert torch.equal(hist.ring.fx_state["sum_long"][keep], before["sum"][keep])
+    for k, v in before["ema"].items():
+        assert torch.equal(west.ema_state[k][keep], v[keep])
+    assert torch.equal(west.value[keep], before["value"][keep])
+    assert torch.equal(out["wind_hat"][keep], before["value"][keep])
+    # the reset row restarted: one sample, its window is that sample repeated, EMA = first estimate
+    assert hist.ring.count.tolist() == [4, 1, 4]
+    w = hist.ring.windows(torch.tensor([1]))[0]
+    assert torch.equal(w, out["features"][1].expand_as(w))
+    first = bundle.predict(west.ring.windows(torch.tensor([1])))
+    torch.testing.assert_close(west.value[1:2], first)
+    assert bool(west.ema_state["started"][1])
+
+
+def test_estimator_is_frozen_and_outside_parameters(bundle):
+    env = make_env("horizontal", bundle, 2, config=short_config())
+    west = wind_estimate(env)
+    assert list(west.parameters()) == [] and list(env.transform.parameters()) == []
+    assert not any("gru" in k or "head" in k for k in env.state_dict())
+    assert not bundle.model.training
+    assert all(not p.requires_grad for p in bundle.model.parameters())
+
+
+def test_wind_zero_zeroes_exactly_the_wind_inputs(bundle):
+    """Same scenarios, same (zero) actions: the ablation env's observation differs from the
+    wind-aware one in channels 13, 14 only, which are exactly 0 (after normalisation)."""
+    cfg = short_config()
+    envs = {w: make_env("horizontal", bundle, 3, wind_input=w, config=cfg) for w in ("estimate", "zero")}
+    obs = {}
+    for w, env in envs.items():
+        td = env.reset(scenario=scenarios(3))
+        rows = [td["observation"]]
+        for _ in range(30):
+            td["action"] = torch.zeros(3, 4)
+            td = env.step(td)["next"]
+            rows.append(td["observation"])
+        obs[w] = torch.stack(rows, 1)
+    a, z = obs["estimate"], obs["zero"]
+    others = [i for i in range(OBSERVATION_DIM) if i not in WIND_INDICES]
+    assert torch.equal(z[..., list(WIND_INDICES)], torch.zeros_like(z[..., :2]))
+    assert torch.equal(z[..., others], a[..., others])
+    assert a[..., list(WIND_INDICES)].abs().sum() > 0
+
+
+def test_raw_observation_matches_sensors_and_features():
+    """Before normalisation: the kinematic block equals the estimator features' (at ticks), the
+    wind block is wind_hat, and the controller channels are the env's entries."""
+    cfg = short_config()
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[2]), Compose(
+        FeatureHistory("horizontal", config=cfg), WindEstimate(source="truth", config=cfg), PolicyObservation(cfg)))
+    td = env.reset(scenario=scenarios(2))
+    for _ in range(20):
+        td["action"] = torch.full((2, 4), 0.3)
+        td = env.step(td)["next"]
+    obs = td["observation"]
+    assert torch.equal(obs[:, :13], td["features"][:, :13])  # step 20 is a tick
+    assert torch.equal(obs[:, 13:15], td["wind_hat"])
+    mw = td["truth", "mean_wind"]
+    assert torch.equal(td["wind_hat"], torch.stack((mw[:, 1], mw[:, 0]), -1))
+    assert torch.equal(obs[:, 15:18], td["pos_error"])
+    torch.testing.assert_close(obs[:, 18], td["pd_wrench"][:, 0] / (cfg.vehicle.mass_kg * 9.81))
+    torch.testing.assert_close(obs[:, 19:], td["ff_wrench"] / torch.tensor(cfg.residual.action_scale))
+
+
+def test_zero_policy_reproduces_pd(bundle):
+    """The full training stack with a policy whose output is forced to zero flies exactly the
+    PD baseline of the bare env on the same scenarios (runner.fly, bit for bit)."""
+    from quadwind_trl.rl.ppo import PPOConfig, build_actor_critic
+
+    cfg = short_config()
+    sc = scenarios(3, start_step=-1)  # airborne at the pattern start (quicker)
+    pd = fly(QuadWindEnv(cfg, batch_size=[3]), sc)
+    actor, _ = build_actor_critic(PPOConfig(hidden=(32, 32)))
+    last = actor.module[0].module[0][-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.zero_()
+    env = make_env("horizontal", bundle, 3, config=cfg)
+    rl = fly(env, sc, policy=actor)
+    assert torch.equal(rl.rmse_xy, pd.rmse_xy) and torch.equal(rl.rmse_z, pd.rmse_z)
+    assert torch.equal(rl.log["meas"], pd.log["meas"])
+    assert torch.equal(rl.log["ff_wrench"], torch.zeros_like(rl.log["ff_wrench"]))
+
+
+def test_running_norm_never_returns_nan():
+    """VecNormV2's variance E[x^2] - E[x]^2 can come out below 0 by cancellation on a constant
+    channel, and its square root is then NaN; RunningObsNorm clamps it at 0 (scale = eps)."""
+    from torchrl.envs import VecNormV2
+
+    from quadwind_trl.transforms import RunningObsNorm
+
+    x = torch.tensor([1.1, 2.0])
+    loc = TensorDict({"observation": x}, [])
+    var = TensorDict({"observation": x * x * torch.tensor([1 - 1e-7, 1.0])}, [])  # first: 1 ulp too small
+    count = TensorDict({"observation": torch.tensor(5)}, [])
+    data = TensorDict({"observation": x.clone()}, [])
+    plain = VecNormV2(in_keys=["observation"], decay=1.0)._norm(data, loc, var, count)["observation"]
+    fixed = RunningObsNorm(in_keys=["observation"], decay=1.0)._norm(data, loc, var, count)["observation"]
+    assert torch.isnan(plain[0])
+    assert torch.equal(fixed, torch.zeros(2))
+
+
+def test_vecnorm_pools_rows_and_freezes(bundle):
+    env = make_env("horizontal", bundle, 4, config=short_config())
+    vn = vecnorm(env)
+    r = env.rollout(20, break_when_any_done=False)
+    assert torch.isfinite(r["observation"]).all() and torch.isfinite(r["next", "observation"]).all()
+    assert vn.loc["observation"].shape == (OBSERVATION_DIM,)  # one statistics set for all sub-envs
+    vn.freeze()
+    loc = vn.loc["observation"].clone()
+    env.rollout(5, break_when_any_done=False)
+    assert torch.equal(loc, vn.loc["observation"])
+    state = {k: v for k, v in vn.state_dict().items()}
+    env2 = make_env("horizontal", bundle, 4, config=short_config(), vecnorm_state=state)
+    assert vecnorm(env2).frozen and torch.allclose(vecnorm(env2).loc["observation"], loc)
+
+
+def test_episode_control_desyncs_first_episodes():
+    cfg = short_config()
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[6], scenario_sampler=ScenarioSampler(start="pattern")),
+                         EpisodeControl(desync_steps=50, seed=1))
+    r = env.rollout(60, break_when_any_done=False)
+    trunc = r["next", "truncated"].squeeze(-1)
+    first = trunc.float().argmax(1) + 1
+    assert bool(trunc.any(1).all())
+    assert torch.equal(first, env.transform.limit) and bool((first <= 50).all()) and bool((first % 10 == 0).all())
+    assert len(set(first.tolist())) > 1
+    assert not bool(r["next", "terminated"].any())
+    env.transform.request_truncation()
+    td = env.rand_step(env.reset())
+    assert bool(td["next", "truncated"].all())
