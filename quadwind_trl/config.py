@@ -8,6 +8,7 @@ one with :func:`dataclasses.replace` rather than mutating a shared instance.
 from __future__ import annotations
 
 import math
+import typing
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Literal
 
@@ -287,3 +288,27 @@ def config_to_dict(cfg) -> dict:
     if isinstance(cfg, (tuple, list)):
         return [config_to_dict(v) for v in cfg]
     return cfg
+
+
+def config_from_dict(cls, data: dict):
+    """Rebuild a (nested) config dataclass from :func:`config_to_dict` output (JSON lists become
+    tuples again; unknown keys fail loudly)."""
+    hints = typing.get_type_hints(cls)
+    unknown = set(data) - {f.name for f in fields(cls)}
+    if unknown:
+        raise KeyError(f"{cls.__name__} has no fields {sorted(unknown)}")
+    kwargs = {}
+    for f in fields(cls):
+        if f.name not in data:
+            continue
+        value, hint = data[f.name], hints[f.name]
+        if is_dataclass(hint):
+            value = config_from_dict(hint, value)
+        elif isinstance(value, list):
+            value = _as_tuple(value)
+        kwargs[f.name] = value
+    return cls(**kwargs)
+
+
+def _as_tuple(value):
+    return tuple(_as_tuple(v) for v in value) if isinstance(value, list) else value

@@ -75,12 +75,110 @@ def pd_calibration_section(result: dict) -> str:
     return "\n".join(lines)
 
 
+def _pm(mean: float, std: float) -> str:
+    return f"{mean:.3f} +- {std:.3f}"
+
+
+def _stats_row(label: str, block: dict, ref: dict | None) -> str:
+    d, a = block["distribution"], block["aware"]
+    ours = (f"| {label} | {a['n']} | {_pm(d['pd']['mean'], d['pd']['std'])} | {_pm(d['aware']['mean'], d['aware']['std'])} | "
+            f"{a['improvement']:.1f} % ({a['ci_low']:.1f}-{a['ci_high']:.1f}) | {a['wins']}/{a['n']} |")
+    if ref is None:
+        return ours + " - |"
+    return ours + (f" {ref['pd'][0]:.2f} / {ref['aware'][0]:.2f}, {ref['improvement']:.1f} % "
+                   f"({ref['ci'][0]:.1f}-{ref['ci'][1]:.1f}), {ref['wins']}/{ref['n']} |")
+
+
+def _wind_table(block: dict, reference: dict, with_oracle: bool) -> list[str]:
+    head = "| U (m/s) | PD (m) | wind-blind RL (m) | wind-aware RL (m) |" + (" oracle (m) |" if with_oracle else "")
+    head += " impr. (%) | perception share (%) | paper: PD / blind / aware, impr., share |"
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    rows = dict(_by_number(block["by_wind"]))
+    for key, r in rows.items():
+        ref = reference.get(float(key))
+        line = f"| {key} | {r['pd']:.3f} | {r['blind']:.3f} | {r['aware']:.3f} |" + (f" {r['oracle']:.3f} |" if with_oracle else "")
+        line += f" {r['improvement']:.1f} | {r['perception_share']:.1f} |"
+        line += (f" {ref['pd']:.3f} / {ref['blind']:.3f} / {ref['aware']:.3f}, {ref['improvement']:.1f}, {ref['perception_share']:.1f} |"
+                 if ref else " - |")
+        lines.append(line)
+    d = block["decomposition"]
+    ref = reference.get("all")
+    line = f"| all | {d['pd']:.3f} | {d['blind']:.3f} | {d['aware']:.3f} |"
+    if with_oracle:
+        line += f" {block['distribution']['oracle']['mean']:.3f} |"
+    line += f" {d['improvement']:.1f} | {d['perception_share']:.1f} |"
+    line += (f" {ref['pd']:.3f} / {ref['blind']:.3f} / {ref['aware']:.3f}, {ref['improvement']:.1f}, {ref['perception_share']:.1f} |"
+             if ref else " - |")
+    lines.append(line)
+    return lines
+
+
+def ablation_section(results: dict[str, dict]) -> str:
+    """The paper's Tables 3-6, the out-of-distribution probe and the oracle row."""
+    lines = ["## Wind-aware RL against PD: the paired ablation", ""]
+    any_result = next(iter(results.values()))
+    lines.append(f"Command: `{any_result['command']}` (commit `{any_result.get('git_commit')}`). Every controller flies the")
+    lines.append("same scenarios with bitwise-identical wind fields and sensor noise. Improvement = 1 - mean RL / mean PD with a")
+    lines.append("paired bootstrap 95 % interval (10,000 resamples); wins = pairs where wind-aware RL is strictly better.")
+    lines.append("Wind-blind RL is the same policy with its two wind inputs zeroed; the oracle is the same policy fed the true")
+    lines.append("turbulence-free mean wind (not in the paper).")
+    lines += ["", "### Tracking statistics (paper Table 3)", "",
+              "| regime | N | PD mean +- std (m) | wind-aware mean +- std (m) | improvement (95 % CI) | wins | paper: PD / aware, impr. (CI), wins |",
+              "|---|---|---|---|---|---|---|"]
+    if "horizontal" in results:
+        lines.append(_stats_row("horizontal (xy)", results["horizontal"]["rmse_xy"], paper.TRACKING_STATS["horizontal"]))
+    if "vertical" in results:
+        lines.append(_stats_row("vertical (xy)", results["vertical"]["rmse_xy"], paper.TRACKING_STATS["vertical_xy"]))
+        lines.append(_stats_row("vertical (z)", results["vertical"]["rmse_z"], paper.TRACKING_STATS["vertical_z"]))
+    if "ood" in results:
+        lines.append(_stats_row("out of distribution (xy)", results["ood"]["rmse_xy"], None))
+    if "horizontal" in results:
+        h = results["horizontal"]["rmse_xy"]
+        with_oracle = "oracle" in h["distribution"]
+        lines += ["", "### Horizontal tracking by mean wind speed, with the decomposition (paper Table 4)", ""]
+        lines += _wind_table(h, paper.HORIZONTAL_BY_WIND, with_oracle)
+        lines += ["", "### Horizontal tracking by trajectory (paper Table 5)", "",
+                  "| trajectory | PD (m) | wind-aware (m) | impr. (%) | perception share (%) | paper: PD / aware, impr. |",
+                  "|---|---|---|---|---|---|"]
+        for name, r in h["by_trajectory"].items():
+            ref = paper.HORIZONTAL_BY_TRAJECTORY[name]
+            lines.append(f"| `{name}` | {r['pd']:.3f} | {r['aware']:.3f} | {r['improvement']:.1f} | {r['perception_share']:.1f} | "
+                         f"{ref['pd']:.3f} / {ref['aware']:.3f}, {ref['improvement']:.1f} |")
+        lines += ["", "![tracking](figures/tracking_horizontal.png)", "", "![decomposition](figures/decomposition_horizontal.png)",
+                  "", "![trace](figures/trace_lawnmower.png)", ""]
+    if "vertical" in results:
+        v = results["vertical"]
+        lines += ["### Vertical regime, horizontal (xy) tracking by mean wind speed (paper Table 6)", ""]
+        lines += _wind_table(v["rmse_xy"], paper.VERTICAL_BY_WIND, "oracle" in v["rmse_xy"]["distribution"])
+        dz = v["rmse_z"]["decomposition"]
+        lines += ["", f"Vertical axis (z): kinematic share {dz['kinematic_share']:.1f} %, perception share "
+                  f"{dz['perception_share']:.1f} % (paper: 104.7 % and -4.7 %).", "",
+                  "![vertical](figures/tracking_vertical.png)", "", "![vertical decomposition](figures/decomposition_vertical.png)",
+                  "", "![3-D trace](figures/trace_figure8_3d.png)", ""]
+    if "ood" in results:
+        o = results["ood"]["rmse_xy"]
+        a = o["aware"]
+        lines += ["### Out of distribution (U = 13-15 m/s)", "",
+                  "| | PD | wind-aware RL | paper PD | paper RL |", "|---|---|---|---|---|",
+                  f"| mean RMSE (m) | {o['distribution']['pd']['mean']:.2f} | {o['distribution']['aware']['mean']:.2f} | {paper.OOD['pd_mean']} | {paper.OOD['aware_mean']} |",
+                  f"| median RMSE (m) | {o['median']['pd']:.2f} | {o['median']['aware']:.2f} | - | - |",
+                  f"| worst episode (m) | {o['worst']['pd']:.1f} | {o['worst']['aware']:.1f} | {paper.OOD['pd_worst']} | {paper.OOD['aware_worst']} |",
+                  f"| improvement | | {a['improvement']:.1f} % ({a['ci_low']:.1f}-{a['ci_high']:.1f}) | | {paper.OOD['improvement']} % |",
+                  f"| wins | | {a['wins']}/{a['n']} | | {paper.OOD['wins']}/{paper.OOD['n']} |",
+                  "", "![ood](figures/ood.png)", ""]
+    return "\n".join(lines)
+
+
 def build_report(results_dir: Path, sections_dir: Path, preamble: str) -> str:
     """The whole results page: the preamble, then every section whose inputs exist."""
     parts = [preamble.rstrip(), ""]
     pd_file = results_dir / "pd_baseline.json"
     if pd_file.exists():
         parts.append(pd_calibration_section(json.loads(pd_file.read_text())))
+    ablations = {name: json.loads((results_dir / f"ablation_{name}.json").read_text())
+                 for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
+    if ablations:
+        parts.append(ablation_section(ablations))
     for section in sorted(sections_dir.glob("*.md")):
         parts.append(section.read_text().rstrip())
         parts.append("")

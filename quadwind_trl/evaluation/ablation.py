@@ -1,0 +1,125 @@
+"""The paired three-way ablation (plus a true-wind oracle) on identical replayed physics.
+
+Every controller flies the same scenarios, in an env of the same batch size, so each episode's
+world (turbulence field, sensor noise and bias, initial state) is bitwise the same for all of
+them (``docs/simulator.md``, exact replay):
+
+* ``pd``: the wind-blind PD baseline (zero residual);
+* ``blind``: the trained policy with its two wind inputs forced to zero (``WindZero``): the same
+  weights, the wind channel removed at inference (the paper's "wind-blind RL");
+* ``aware``: the trained policy reading the frozen estimator's filtered wind (the paper's system);
+* ``oracle``: the same policy fed the true turbulence-free mean wind instead of the estimate
+  (not in the paper: it measures what a perfect estimator would add).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+from ..config import EnvConfig, config_from_dict
+from ..envs.runner import FlightResults, fly
+from ..envs.trajectories import TRAJECTORIES
+from ..modules.wind_estimator import EstimatorBundle
+from ..regimes import EvalSweep
+from .grouping import group_stats
+from .statistics import decompose, paired_summary
+
+CONTROLLERS = ("pd", "blind", "aware", "oracle")
+WIND_INPUT = {"pd": "estimate", "blind": "zero", "aware": "estimate", "oracle": "truth"}
+TRACE_KEYS = (("truth", "pos"), "ref_pos", ("truth", "mean_wind"), "step")
+
+
+def policy_env_config(payload: dict) -> EnvConfig:
+    """The env config the policy was trained with (from its checkpoint)."""
+    return config_from_dict(EnvConfig, payload["env_spec"]["env_config"])
+
+
+def fly_controllers(
+    regime: str,
+    scenarios: TensorDictBase,
+    policy_path: str | Path,
+    estimator: EstimatorBundle,
+    controllers: tuple[str, ...] = CONTROLLERS,
+    batch: int | None = None,
+    progress: bool = False,
+    device: str = "cpu",
+    config_override: Callable[[EnvConfig], EnvConfig] | None = None,
+) -> dict[str, FlightResults]:
+    """Fly ``scenarios`` with each controller; results per controller, in scenario order.
+
+    The env is the one the policy trained in (its config is in the checkpoint), unless
+    ``config_override`` changes it (e.g. shorter flights for smoke runs)."""
+    from ..rl.envs import make_env
+    from ..rl.ppo import load_policy
+
+    actor, payload = load_policy(policy_path, device=device)
+    config = policy_env_config(payload)
+    if config_override is not None:
+        config = config_override(config)
+    n = batch or scenarios.batch_size[0]
+    out = {}
+    for name in controllers:
+        env = make_env(
+            regime,
+            estimator if WIND_INPUT[name] != "truth" else None,
+            n,
+            wind_input=WIND_INPUT[name],
+            device=device,
+            config=config,
+            vecnorm_state=payload["vecnorm"],
+        )
+        policy = None if name == "pd" else actor
+        out[name] = fly(env, scenarios, policy=policy, log_keys=TRACE_KEYS, progress=progress)
+    return out
+
+
+def _episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults]) -> TensorDict:
+    table = scenarios.select("traj_id", "wind_speed_ref_m_s", "turb_intensity", "case_id", strict=False).clone()
+    for name, res in results.items():
+        table[f"{name}_rmse_xy"] = res.rmse_xy
+        table[f"{name}_rmse_z"] = res.rmse_z
+        table[f"{name}_rmse"] = res.rmse
+        table[f"{name}_crashed"] = res.crashed
+    return table
+
+
+def _grouped_decomposition(table: TensorDictBase, metric: str, labels: torch.Tensor) -> dict:
+    out = {}
+    for label in labels.unique(sorted=True).tolist():
+        m = labels == label
+        d = decompose(table[f"pd_{metric}"][m], table[f"blind_{metric}"][m], table[f"aware_{metric}"][m])
+        row = d.as_dict()
+        if f"oracle_{metric}" in table.keys():
+            row["oracle"] = table[f"oracle_{metric}"][m].double().mean().item()
+        out[label] = row
+    return out
+
+
+def summarize_ablation(sweep: EvalSweep, scenarios: TensorDictBase, results: dict[str, FlightResults]) -> dict:
+    """Everything the paper's tables need, JSON-ready: paired statistics of each policy variant
+    against PD, the decomposition by wind level and by trajectory, and per-episode RMSEs."""
+    table = _episode_table(scenarios, results)
+    metrics = ("rmse_xy", "rmse_z", "rmse") if sweep.name == "vertical" else ("rmse_xy", "rmse")
+    summary: dict = {"sweep": sweep.name, "episodes": scenarios.batch_size[0], "controllers": list(results)}
+    for metric in metrics:
+        block: dict = {}
+        for name in results:
+            if name != "pd":
+                block[name] = paired_summary(table[f"pd_{metric}"], table[f"{name}_{metric}"])
+            stats = group_stats(table[f"{name}_{metric}"], torch.zeros(table.batch_size[0]))[0.0]
+            block.setdefault("distribution", {})[name] = stats.as_dict()
+        if {"pd", "blind", "aware"} <= set(results):
+            block["decomposition"] = decompose(table[f"pd_{metric}"], table[f"blind_{metric}"], table[f"aware_{metric}"]).as_dict()
+            block["by_wind"] = {f"{k:g}": v for k, v in _grouped_decomposition(table, metric, table["wind_speed_ref_m_s"]).items()}
+            block["by_trajectory"] = {
+                TRAJECTORIES[int(k)]: v for k, v in _grouped_decomposition(table, metric, table["traj_id"]).items()
+            }
+        block["median"] = {name: table[f"{name}_{metric}"].median().item() for name in results}
+        block["worst"] = {name: table[f"{name}_{metric}"].max().item() for name in results}
+        summary[metric] = block
+    summary["crashed"] = {name: int(table[f"{name}_crashed"].sum()) for name in results}
+    summary["episodes_table"] = {key: table[key].tolist() for key in table.keys()}
+    return summary

@@ -1,0 +1,200 @@
+"""The paper's tracking figures, drawn from our ablation results (matplotlib, PNG)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+from tensordict import TensorDictBase  # noqa: E402
+
+from ..envs.runner import FlightResults  # noqa: E402
+from ..envs.trajectories import TRAJECTORIES, TRAJECTORY_IDS  # noqa: E402
+
+COLORS = {"pd": "tab:red", "blind": "tab:orange", "aware": "tab:blue", "oracle": "tab:green"}
+LABELS = {"pd": "PD baseline", "blind": "wind-blind RL", "aware": "wind-aware RL", "oracle": "true-wind oracle"}
+
+
+def _save(fig, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
+def _table(summary: dict) -> dict[str, np.ndarray]:
+    return {k: np.asarray(v) for k, v in summary["episodes_table"].items()}
+
+
+def _by_wind(summary: dict, metric: str) -> tuple[np.ndarray, dict]:
+    rows = summary[metric]["by_wind"]
+    speeds = np.array(sorted(float(k) for k in rows))
+    return speeds, {s: rows[f"{s:g}"] for s in speeds}
+
+
+def scatter_and_improvement(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
+    """(a) per-condition wind-aware vs PD RMSE; (b) relative improvement vs wind per intensity."""
+    t = _table(summary)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4.2))
+    pd_, aw = t[f"pd_{metric}"], t[f"aware_{metric}"]
+    sc = a.scatter(pd_, aw, c=t["wind_speed_ref_m_s"], cmap="viridis", s=14)
+    top = max(pd_.max(), aw.max()) * 1.05
+    a.plot([0, top], [0, top], "k--", lw=0.8)
+    a.set(xlabel="PD RMSE (m)", ylabel="wind-aware RL RMSE (m)", xscale="log", yscale="log",
+          title=f"{(aw < pd_).sum()}/{len(pd_)} episodes below the diagonal")
+    fig.colorbar(sc, ax=a, label="U (m/s)")
+    for inten in np.unique(t["turb_intensity"]):
+        m = np.isclose(t["turb_intensity"], inten)
+        speeds = np.unique(t["wind_speed_ref_m_s"][m])
+        impr = [100 * (1 - aw[m & (t["wind_speed_ref_m_s"] == s)].mean() / pd_[m & (t["wind_speed_ref_m_s"] == s)].mean()) for s in speeds]
+        b.plot(speeds, impr, "o-", label=f"intensity {inten:.2f}")
+    b.set(xlabel="mean wind U (m/s)", ylabel="RMSE reduction vs PD (%)", title="improvement by wind level")
+    b.legend()
+    b.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def decomposition(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
+    """Four panels: RMSE by wind for the controllers; stacked kinematic / perception shares;
+    perception share of the improvement; per-trajectory RMSE at the strongest wind."""
+    speeds, rows = _by_wind(summary, metric)
+    fig, ax = plt.subplots(2, 2, figsize=(11, 8))
+    a = ax[0, 0]
+    for name in ("pd", "blind", "aware"):
+        a.plot(speeds, [rows[s][name] for s in speeds], "o-", color=COLORS[name], label=LABELS[name])
+    if "oracle" in rows[speeds[0]]:
+        a.plot(speeds, [rows[s]["oracle"] for s in speeds], "s--", color=COLORS["oracle"], label=LABELS["oracle"])
+    a.fill_between(speeds, [rows[s]["pd"] for s in speeds], [rows[s]["blind"] for s in speeds], color="tab:orange", alpha=0.15)
+    a.fill_between(speeds, [rows[s]["blind"] for s in speeds], [rows[s]["aware"] for s in speeds], color="tab:blue", alpha=0.15)
+    a.set(xlabel="U (m/s)", ylabel="mean RMSE (m)", title="controllers by wind level")
+    a.legend()
+    b = ax[0, 1]
+    kin = np.array([100 * rows[s]["kinematic"] / rows[s]["pd"] for s in speeds])
+    perc = np.array([100 * rows[s]["perception"] / rows[s]["pd"] for s in speeds])
+    width = 0.8 * (speeds[1] - speeds[0]) if len(speeds) > 1 else 1.0
+    b.bar(speeds, kin, width, color="tab:orange", label="kinematic")
+    b.bar(speeds, perc, width, bottom=kin, color="tab:blue", label="wind perception")
+    b.set(xlabel="U (m/s)", ylabel="reduction of PD RMSE (%)", title="stacked components")
+    b.legend()
+    c = ax[1, 0]
+    c.plot(speeds, [rows[s]["perception_share"] for s in speeds], "o-", color="tab:blue")
+    c.axhline(0, color="k", lw=0.8)
+    c.set(xlabel="U (m/s)", ylabel="perception share of the improvement (%)", title="wind-perception share")
+    d = ax[1, 1]
+    t = _table(summary)
+    strongest = t["wind_speed_ref_m_s"] == t["wind_speed_ref_m_s"].max()
+    ids = np.unique(t["traj_id"])
+    for k, name in enumerate(("pd", "blind", "aware")):
+        vals = [t[f"{name}_{metric}"][strongest & (t["traj_id"] == i)].mean() for i in ids]
+        d.bar(np.arange(len(ids)) + (k - 1) * 0.27, vals, 0.27, color=COLORS[name], label=LABELS[name])
+    d.set_xticks(np.arange(len(ids)), [TRAJECTORIES[int(i)] for i in ids], rotation=20)
+    d.set(ylabel="mean RMSE (m)", title=f"by trajectory at U = {t['wind_speed_ref_m_s'].max():g} m/s")
+    d.legend()
+    return _save(fig, path)
+
+
+def _pick(scenarios: TensorDictBase, traj: str, wind: float) -> int:
+    m = (scenarios["traj_id"] == TRAJECTORY_IDS[traj]) & (scenarios["wind_speed_ref_m_s"] == wind)
+    rows = torch.nonzero(m).flatten()
+    return int(rows[len(rows) // 2])
+
+
+def _trace(res: FlightResults, row: int, pattern_only: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """True and reference positions of one flight at 10 Hz; ``pattern_only`` drops the climb of a
+    fixed-altitude flight (the samples before the reference reaches its cruise altitude)."""
+    keep = res.log["valid"][row]
+    ref = res.log["ref_pos"][row]
+    if pattern_only:
+        keep = keep & (ref[:, 2] >= ref[keep][:, 2].max() - 1e-3)
+    return res.log["truth", "pos"][row][keep].numpy(), ref[keep].numpy()
+
+
+def trace_top_down(scenarios: TensorDictBase, results: dict[str, FlightResults], traj: str, wind: float, path: Path) -> Path:
+    """(a) top-down path of PD and wind-aware RL against the reference; (b) horizontal error."""
+    row = _pick(scenarios, traj, wind)
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.5))
+    pos, ref = _trace(results["pd"], row, pattern_only=True)
+    a.plot(ref[:, 0], ref[:, 1], "k--", lw=0.8, label="reference")
+    for name in ("pd", "aware"):
+        pos, ref = _trace(results[name], row, pattern_only=True)
+        err = np.linalg.norm(pos[:, :2] - ref[:, :2], axis=-1)
+        rmse = results[name].rmse_xy[row].item()
+        a.plot(pos[:, 0], pos[:, 1], color=COLORS[name], lw=1, label=f"{LABELS[name]} (RMSE {rmse:.2f} m)")
+        b.plot(np.arange(len(err)) / 10.0, err, color=COLORS[name], lw=0.8, label=LABELS[name])
+    a.set(xlabel="east (m)", ylabel="north (m)", title=f"{traj}, U = {wind:g} m/s")
+    a.set_aspect("equal", adjustable="datalim")
+    a.legend(fontsize=8)
+    b.set(xlabel="time since the pattern start (s)", ylabel="horizontal error (m)", title="tracking error over the pattern")
+    b.legend()
+    return _save(fig, path)
+
+
+def trace_3d(scenarios: TensorDictBase, results: dict[str, FlightResults], traj: str, wind: float, path: Path) -> Path:
+    row = _pick(scenarios, traj, wind)
+    fig = plt.figure(figsize=(7, 6))
+    a = fig.add_subplot(projection="3d")
+    pos, ref = _trace(results["pd"], row)
+    a.plot(ref[:, 0], ref[:, 1], ref[:, 2], "k--", lw=0.7, label="reference")
+    for name in ("pd", "aware"):
+        pos, _ = _trace(results[name], row)
+        a.plot(pos[:, 0], pos[:, 1], pos[:, 2], color=COLORS[name], lw=0.9,
+               label=f"{LABELS[name]} (xy RMSE {results[name].rmse_xy[row].item():.2f} m)")
+    a.set(xlabel="east (m)", ylabel="north (m)", zlabel="altitude (m)", title=f"{traj}, U_mean = {wind:g} m/s")
+    a.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def vertical_comparison(summary: dict, path: Path) -> Path:
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4.2))
+    for a, metric, title in ((ax[0], "rmse_xy", "horizontal (xy)"), (ax[1], "rmse_z", "vertical (z)")):
+        speeds, rows = _by_wind(summary, metric)
+        for name in ("pd", "aware"):
+            a.plot(speeds, [rows[s][name] for s in speeds], "o-", color=COLORS[name], label=LABELS[name])
+        a.set(xlabel="U_mean (m/s)", ylabel="mean RMSE (m)", title=title)
+        a.legend()
+    return _save(fig, path)
+
+
+def perception_share(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
+    speeds, rows = _by_wind(summary, metric)
+    fig, a = plt.subplots(figsize=(6, 4))
+    a.plot(speeds, [rows[s]["perception_share"] for s in speeds], "o-", color="tab:blue")
+    a.axhline(0, color="k", lw=0.8)
+    a.set(xlabel="U_mean (m/s)", ylabel="perception share (%)", title="wind-perception share of the xy improvement")
+    return _save(fig, path)
+
+
+def ood_panel(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
+    t = _table(summary)
+    speeds = np.unique(t["wind_speed_ref_m_s"])
+    fig, ax = plt.subplots(2, 2, figsize=(11, 8))
+    a = ax[0, 0]
+    for name in ("pd", "aware"):
+        v = t[f"{name}_{metric}"]
+        a.plot(speeds, [v[t["wind_speed_ref_m_s"] == s].mean() for s in speeds], "o-", color=COLORS[name], label=f"{LABELS[name]} mean")
+        a.plot(speeds, [np.median(v[t["wind_speed_ref_m_s"] == s]) for s in speeds], "s--", color=COLORS[name], label=f"{LABELS[name]} median")
+    a.set(xlabel="U (m/s)", ylabel="RMSE (m)", title="mean and median")
+    a.legend(fontsize=8)
+    b = ax[0, 1]
+    pd_, aw = t[f"pd_{metric}"], t[f"aware_{metric}"]
+    b.plot(speeds, [100 * (1 - aw[t["wind_speed_ref_m_s"] == s].mean() / pd_[t["wind_speed_ref_m_s"] == s].mean()) for s in speeds], "o-")
+    b.set(xlabel="U (m/s)", ylabel="RMSE reduction (%)", title="improvement out of distribution")
+    c = ax[1, 0]
+    c.scatter(pd_, aw, s=14)
+    top = max(pd_.max(), aw.max()) * 1.05
+    c.plot([0, top], [0, top], "k--", lw=0.8)
+    c.set(xlabel="PD RMSE (m)", ylabel="wind-aware RL RMSE (m)", xscale="log", yscale="log",
+          title=f"{(aw < pd_).sum()}/{len(pd_)} below the diagonal")
+    d = ax[1, 1]
+    ids = np.unique(t["traj_id"])
+    for k, name in enumerate(("pd", "aware")):
+        d.bar(np.arange(len(ids)) + (k - 0.5) * 0.4, [t[f"{name}_{metric}"][t["traj_id"] == i].mean() for i in ids], 0.4,
+              color=COLORS[name], label=LABELS[name])
+    d.set_xticks(np.arange(len(ids)), [TRAJECTORIES[int(i)] for i in ids], rotation=20)
+    d.set(ylabel="mean RMSE (m)", title="by trajectory")
+    d.legend()
+    return _save(fig, path)
