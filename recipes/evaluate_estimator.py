@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import re
 import shlex
 import sys
@@ -260,9 +261,11 @@ def main() -> None:
     p.add_argument("--batch", type=int, default=1024)
     p.add_argument("--threads", type=int, default=None)
     p.add_argument("--quick", action="store_true", help="the dataset is a --quick one (split in thirds if needed)")
-    p.add_argument("--md", default="docs/results_estimation.md")
+    p.add_argument("--md", default="docs/results/2_estimation.md",
+                   help="section file (one section per regime) that recipes/report.py merges into docs/results.md")
+    p.add_argument("--link-base", default="docs", help="figure links are relative to this folder (where docs/results.md is)")
     p.add_argument("--fig-dir", default="docs/figures")
-    p.add_argument("--json", default=None, help="default: <fig-dir>/../results_estimation_<regime>.json")
+    p.add_argument("--json", default=None, help="default: results/estimation_<regime>.json")
     p.add_argument("--update-checkpoint", action="store_true", help="store the val-selected tau and these metrics in the checkpoint")
     args = p.parse_args()
     if args.threads is not None:
@@ -271,7 +274,7 @@ def main() -> None:
     ckpt = Path(args.checkpoint) if args.checkpoint else CHECKPOINT_DIR / f"estimator_{regime}.pt"
     fig_dir = Path(args.fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
-    json_path = Path(args.json) if args.json else fig_dir.parent / f"results_estimation_{regime}.json"
+    json_path = Path(args.json) if args.json else Path("results") / f"estimation_{regime}.json"
     t_start = time.perf_counter()
 
     try:
@@ -350,7 +353,7 @@ def main() -> None:
         if deployed in test_f:
             cols[f"ours: unseen, EMA tau={deployed:g} s"] = results["unseen_ema"][str(deployed)]
     paper = PAPER[regime]
-    rel = lambda p_: Path(p_).resolve().relative_to(Path(args.md).resolve().parent) if Path(p_).resolve().is_relative_to(Path(args.md).resolve().parent) else Path(p_)  # noqa: E731
+    rel = lambda p_: os.path.relpath(Path(p_).resolve(), Path(args.link_base).resolve())  # noqa: E731
     md = [f"## {regime.capitalize()} wind estimation", ""]
     md.append(
         f"Checkpoint `{ckpt}` (best epoch {bundle.manifest.get('best_epoch', '?')}, trained in "

@@ -44,8 +44,16 @@ def tracking_tables(episodes: TensorDictBase, metric: str = "rmse_xy") -> dict:
     }
 
 
+QUICK_ALTITUDE_M = 20.0
+
+
 def quick_subset(sweep: EvalSweep, scenarios: TensorDictBase) -> TensorDictBase:
-    """One seed and the middle intensity of a sweep: a small, still factorial, smoke subset."""
+    """A small, still factorial, smoke subset: one seed, the middle intensity, the weakest and
+    strongest wind levels, every trajectory; fixed-altitude patterns flown at 20 m (short climb)."""
     mid = sweep.intensities[len(sweep.intensities) // 2]
+    speeds = scenarios["wind_speed_ref_m_s"]
     keep = (scenarios["seed_index"] == 0) & ((scenarios["turb_intensity"] - mid).abs() < 1e-6)
-    return scenarios[keep]
+    keep &= (speeds == min(sweep.wind_speeds)) | (speeds == max(sweep.wind_speeds))
+    out = scenarios[keep].clone()
+    out["altitude_m"] = torch.where(out["altitude_m"] < sweep.ranges.top_altitude_m, QUICK_ALTITUDE_M, out["altitude_m"])
+    return out

@@ -1,0 +1,123 @@
+"""Every stage of the paper, end to end: datasets -> estimators -> PPO policies -> PD baseline
+-> paired ablation -> report.
+
+    python recipes/reproduce.py --quick     # toy scale, a few minutes on 2 cores (scripts/quickstart.sh)
+    python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
+
+Each stage is one of the recipes in this folder, run as its own process; a stage whose output
+already exists is skipped (``--force STAGE`` reruns it), and the long stages resume from their
+last checkpoint when interrupted, so a full reproduction can span several sessions.
+``--quick`` writes everything under ``runs/quick/`` and never touches the shipped checkpoints,
+``results/`` or ``docs/``; ``--full`` writes the shipped artifacts.
+"""
+from __future__ import annotations
+
+import argparse
+import shutil
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
+
+
+@dataclass(frozen=True)
+class Stage:
+    name: str
+    args: tuple[str, ...]
+    output: Path  # the stage is done when this exists
+
+
+def stages(quick: bool) -> list[Stage]:
+    if quick:
+        q = ROOT / "runs" / "quick"
+        data = {r: q / "data" / f"flights_{r}" for r in ("horizontal", "vertical")}
+        est = {r: q / f"estimator_{r}.pt" for r in ("horizontal", "vertical")}
+        pol = {r: q / f"ppo_{r}" for r in ("horizontal", "vertical")}
+        out = [
+            *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--quick", "--cases", "10", "--out", str(data[r])), data[r])
+              for r in data),
+            *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--quick", "--out", str(est[r]),
+                                       "--log-dir", str(q / "runs"), "--no-progress"), est[r]) for r in data),
+            Stage("ppo-horizontal", ("ppo_horizontal.py", "--quick", "--estimator", str(est["horizontal"]), "--out", str(pol["horizontal"]),
+                                     "--no-progress"), pol["horizontal"] / "policy.pt"),
+            Stage("ppo-vertical", ("ppo_vertical_curriculum.py", "--quick", "--estimator", str(est["vertical"]), "--out",
+                                   str(pol["vertical"]), "--no-progress"), pol["vertical"] / "policy.pt"),
+            Stage("pd-baseline", ("pd_baseline.py", "--quick", "--out", str(q / "results" / "pd_baseline.json")),
+                  q / "results" / "pd_baseline.json"),
+            Stage("ablation", ("ablation.py", "--quick", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
+                               "--estimator", str(est["horizontal"]), str(est["vertical"])), q / "results" / "ablation_ood.json"),
+            Stage("report", ("report.py", "--results", str(q / "results"), "--sections", str(q / "sections"), "--out", str(q / "results.md")),
+                  q / "results.md"),
+        ]
+        return out
+    data = {r: ROOT / "data" / f"flights_{r}" for r in ("horizontal", "vertical")}
+    unseen = {r: ROOT / "data" / f"flights_{r}_unseen" for r in data}
+    unseen_seed = {"horizontal": "1002", "vertical": "2002"}
+    return [
+        *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--compile", "--threads", "1"), data[r]) for r in data),
+        *(Stage(f"data-{r}-unseen", ("generate_flights.py", "--regime", r, "--cases", "150", "--seed", unseen_seed[r],
+                                     "--out", str(unseen[r]), "--compile", "--threads", "1"), unseen[r]) for r in data),
+        *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--threads", "1", "--resume",
+                                   "--no-progress"), CHECKPOINTS / f"estimator_{r}.pt") for r in data),
+        *(Stage(f"estimator-{r}-evaluation", ("evaluate_estimator.py", "--regime", r, "--data", str(data[r]), "--unseen-data",
+                                              str(unseen[r]), "--threads", "1", "--update-checkpoint"),
+                ROOT / "results" / f"estimation_{r}.json") for r in data),
+        Stage("ppo-horizontal", ("ppo_horizontal.py", "--out", "runs/ppo_horizontal", "--resume", "--no-progress"),
+              CHECKPOINTS / "policy_horizontal.pt"),
+        Stage("ppo-vertical", ("ppo_vertical_curriculum.py", "--out", "runs/ppo_vertical", "--resume", "--no-progress"),
+              CHECKPOINTS / "policy_vertical.pt"),
+        Stage("pd-baseline", ("pd_baseline.py",), ROOT / "results" / "pd_baseline.json"),
+        Stage("ablation", ("ablation.py",), ROOT / "results" / "ablation_ood.json"),
+        Stage("report", ("report.py",), ROOT / "docs" / "results.md"),
+    ]
+
+
+def ship_policy(regime: str) -> None:
+    """Copy a finished full-scale PPO run's policy (and manifest) into the package."""
+    run = ROOT / "runs" / f"ppo_{regime}"
+    for suffix in (".pt", ".json"):
+        src = run / f"policy{suffix}"
+        if src.exists():
+            shutil.copyfile(src, CHECKPOINTS / f"policy_{regime}{suffix}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    scale = parser.add_mutually_exclusive_group(required=True)
+    scale.add_argument("--quick", action="store_true")
+    scale.add_argument("--full", action="store_true")
+    parser.add_argument("--force", nargs="*", default=[], help="stages to rerun even if their output exists ('all' for every stage)")
+    parser.add_argument("--only", nargs="*", default=None, help="run only these stages")
+    args = parser.parse_args()
+
+    plan = stages(args.quick)
+    names = [s.name for s in plan]
+    for name in (args.only or []) + [f for f in args.force if f != "all"]:
+        if name not in names:
+            parser.error(f"unknown stage {name!r}; stages: {', '.join(names)}")
+    start = time.perf_counter()
+    for stage in plan:
+        if args.only is not None and stage.name not in args.only:
+            continue
+        forced = "all" in args.force or stage.name in args.force
+        if stage.output.exists() and not forced and stage.name != "report":
+            print(f"[{stage.name}] done already ({stage.output.relative_to(ROOT)}); skipping", flush=True)
+            continue
+        cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
+        if forced and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
+            cmd.append("--overwrite")
+        print(f"[{stage.name}] {' '.join(cmd[1:])}", flush=True)
+        t0 = time.perf_counter()
+        subprocess.run(cmd, cwd=ROOT, check=True)
+        if args.full and stage.name.startswith("ppo-"):
+            ship_policy(stage.name.split("-")[1])
+        print(f"[{stage.name}] finished in {time.perf_counter() - t0:.0f} s", flush=True)
+    print(f"all stages finished in {time.perf_counter() - start:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
