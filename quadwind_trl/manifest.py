@@ -19,6 +19,17 @@ def git_commit() -> str | None:
         return None
 
 
+def save_atomic(obj, path: str | os.PathLike) -> None:
+    """``torch.save`` through a temporary file in the same folder and an atomic rename: a reader
+    never sees a half-written checkpoint, even if the writer is killed."""
+    import torch
+
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
 def write_json(path: str | os.PathLike, payload: dict) -> None:
     """Write ``payload`` as indented JSON through a temporary file and an atomic rename."""
     path = Path(path)

@@ -12,7 +12,7 @@ the factorial evaluation sweeps. Everything not stated by the paper is a choice 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict

@@ -34,14 +34,11 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.evaluation.estimation import (
-    ALTITUDE_BINS_M,
     PAPER,
-    SPEED_BINS_M_S,
     TAU_SWEEP_S,
     EMAConfig,
     FlightSequences,
     best_tau,
-    bin_labels,
     ema_sweep,
     evaluate_sequences,
     predict_flights,
@@ -398,7 +395,7 @@ def main() -> None:
                 ["true", f"{s['altitude_speed_slope_true']:.2e}", f"{paper['slope_true']:.1e}"],
             ]), "",
         ]  # fmt: skip
-    md += [f"### EMA post-filter sweep on the validation flights (tau = 0: raw; paper: tau = 3 s best)", "", sweep_table(sweep, tau_best, deployed), ""]
+    md += ["### EMA post-filter sweep on the validation flights (tau = 0: raw; paper: tau = 3 s best)", "", sweep_table(sweep, tau_best, deployed), ""]
     if unseen is not None:
         u = results["unseen"]["summary"]
         rows_ = [["raw", fmt(u["per_window_vector_rmse"]), fmt(u["direction_mae_deg"], 1),

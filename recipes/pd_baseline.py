@@ -9,7 +9,6 @@ report (``recipes/report.py``) puts them beside the paper's PD columns in docs/r
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import replace

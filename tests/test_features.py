@@ -6,7 +6,6 @@ import math
 
 import pytest
 import torch
-from tensordict import TensorDict
 
 from quadwind_trl.config import EnvConfig, SensorConfig, TurbulenceConfig
 from quadwind_trl.data.features import (

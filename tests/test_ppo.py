@@ -11,9 +11,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from quadwind_trl.config import EnvConfig, TrajectoryConfig
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, regime_config, untrained_estimator, vecnorm
 from quadwind_trl.rl.ppo import (

@@ -230,7 +230,7 @@ class FeatureExtractor:
     def _horizontal(self, state, record, kin, r, sf_b, count) -> tuple[dict, Tensor]:
         cmd = record["cmd_wrench"].to(torch.float32)
         u_t = cmd[..., 0]
-        m, g = self.mass_kg, self.gravity_m_s2
+        m = self.mass_kg
         f_w = _apply(r, sf_b)  # realised specific force, world ENU
         b3 = (r[0][2], r[1][2], r[2][2])  # measured body z axis in world
         aero_e, aero_n, aero_u = (m * f - u_t * b for f, b in zip(f_w, b3))  # N

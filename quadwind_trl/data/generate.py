@@ -25,7 +25,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -34,6 +33,7 @@ from typing import Callable, Literal
 import torch
 from tensordict import TensorDict
 
+from ..manifest import git_commit
 from ..config import EnvConfig, TrajectoryConfig, config_to_dict
 from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
@@ -135,16 +135,6 @@ def _record_template(n: int, t_len: int) -> TensorDict:
         },
         batch_size=[n],
     )
-
-
-def _git(*args: str) -> str | None:
-    try:
-        out = subprocess.run(
-            ["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=10
-        )
-        return out.stdout.strip() if out.returncode == 0 else None
-    except (OSError, subprocess.SubprocessError):
-        return None
 
 
 def _balanced_batch(num_flights: int, max_batch: int) -> int:
@@ -253,8 +243,7 @@ def generate_dataset(
         (tmp / "manifest.json").write_text(json.dumps(manifest, indent=1, sort_keys=True) + "\n")
         provenance = {
             "command": command,
-            "git_commit": _git("rev-parse", "HEAD"),
-            "git_dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "git_commit": git_commit(),
             "wall_time_s": round(time.perf_counter() - t0, 2),
             "env_batch": batch,
             "compile_step": compile_step,

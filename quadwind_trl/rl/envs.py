@@ -27,7 +27,7 @@ from typing import Literal
 import torch
 from torchrl.envs import ClipTransform, Compose, RewardSum, StepCounter, TransformedEnv, VecNormV2
 
-from ..config import EnvConfig, RewardConfig
+from ..config import EnvConfig
 from ..data.features import make_extractor
 from ..envs.quad_env import QuadWindEnv, ScenarioSampler
 from ..envs.scenarios import RegimeRanges

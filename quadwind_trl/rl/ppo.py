@@ -32,11 +32,8 @@ start-up that no estimator parameter is among them.
 """
 from __future__ import annotations
 
-import json
 import math
-import os
 import shlex
-import subprocess
 import sys
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -54,6 +51,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from ..config import config_to_dict
+from ..manifest import git_commit, save_atomic, write_json
 from ..envs.runner import fly
 from ..transforms import OBSERVATION_CHANNELS, OBSERVATION_DIM
 from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm, vecnorm_state_dict, wind_estimate
@@ -219,26 +217,6 @@ def evaluate(policy, env: TransformedEnv, scenarios: TensorDictBase, pd_results=
 # --- checkpoints ------------------------------------------------------------------------------
 
 
-def _git(*args: str) -> str | None:
-    try:
-        out = subprocess.run(["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True, text=True, timeout=10)
-        return out.stdout.strip() if out.returncode == 0 else None
-    except (OSError, subprocess.SubprocessError):
-        return None
-
-
-def _atomic_save(obj, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
-def _atomic_json(obj, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(obj, indent=2, sort_keys=True, default=str) + "\n")
-    os.replace(tmp, path)
-
-
 def spec_to_dict(spec: RLEnvSpec) -> dict:
     d = {}
     for f in fields(spec):
@@ -348,8 +326,7 @@ class PPOTrainer:
         est = self.factory.bundle
         return {
             "command": self.command,
-            "git_commit": _git("rev-parse", "HEAD"),
-            "git_dirty": bool(_git("status", "--porcelain", "--untracked-files=no")),
+            "git_commit": git_commit(),
             "ppo_config": asdict(self.cfg),
             "env_spec": spec_to_dict(self.spec),
             "curriculum": asdict(self.curriculum) if self.curriculum else None,
@@ -402,9 +379,9 @@ class PPOTrainer:
             state.update(ck["progress"])
             torch.random.set_rng_state(ck["rng"])
         else:
-            _atomic_json({"ppo_config": asdict(cfg), "env_spec": spec_to_dict(self.spec),
-                          "curriculum": asdict(self.curriculum) if self.curriculum else None,
-                          "command": self.command}, self.out_dir / "config.json")
+            write_json(self.out_dir / "config.json", {"ppo_config": asdict(cfg), "env_spec": spec_to_dict(self.spec),
+                                                      "curriculum": asdict(self.curriculum) if self.curriculum else None,
+                                                      "command": self.command})
 
         # the training env: a fresh seed per (resumed) segment so episodes do not repeat
         seed = self.spec.seed + 7919 * state["iteration"]
@@ -573,19 +550,19 @@ class PPOTrainer:
         payload.update(value=value.state_dict(), optimizer=optim.state_dict(), rng=torch.random.get_rng_state(),
                        progress=dict(state))
         ckpt_dir = self.out_dir / "checkpoints"
-        _atomic_save(payload, ckpt_dir / "latest.pt")
+        save_atomic(payload, ckpt_dir / "latest.pt")
         last_eval = state["evals"][-1] if state["evals"] else {}
-        _atomic_json(self._manifest(last_eval, state["frames"], state["iteration"], state["wall"]), ckpt_dir / "latest.json")
+        write_json(ckpt_dir / "latest.json", self._manifest(last_eval, state["frames"], state["iteration"], state["wall"]))
 
     def _finish(self, actor, value, env, state, result, wall0, logger) -> TrainResult:
         state["wall"] = time.perf_counter() - wall0
         payload = self._payload(actor, env)
         payload["value"] = value.state_dict()
-        _atomic_save(payload, self.out_dir / "policy.pt")
+        save_atomic(payload, self.out_dir / "policy.pt")
         last_eval = state["evals"][-1] if state["evals"] else {}
         manifest = self._manifest(last_eval, state["frames"], state["iteration"], state["wall"])
         manifest["evals"] = state["evals"]
-        _atomic_json(manifest, self.out_dir / "policy.json")
+        write_json(self.out_dir / "policy.json", manifest)
         result.frames, result.iterations, result.wall_time_s = state["frames"], state["iteration"], state["wall"]
         result.evals = list(state["evals"])
         return result

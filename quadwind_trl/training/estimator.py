@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import json
 import math
 import os
 import time
@@ -43,7 +42,7 @@ from ..data.features import make_extractor
 from ..data.generate import load_dataset
 from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
 from ..evaluation.estimation import estimation_metrics
-from ..manifest import git_commit
+from ..manifest import git_commit, save_atomic
 from ..modules.estimator_loss import EstimatorLoss, EstimatorLossConfig
 from ..modules.wind_estimator import AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
 
@@ -270,12 +269,6 @@ def headline(metrics: dict[str, float]) -> dict[str, float]:
 # ---------------------------------------------------------------------------------------------
 
 
-def _atomic_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
 def resume_path(out: str | os.PathLike, log_dir: str | os.PathLike = "runs/estimator") -> Path:
     """The resume state of the run writing ``out``: in ``log_dir`` (never beside the shipped
     checkpoint), named after ``out``'s stem and a hash of its absolute path."""
@@ -485,7 +478,7 @@ def train_estimator(
             }
             _make_bundle(model, wd, cfg.regime, cfg, manifest).save(best_path)
         stop = cfg.patience is not None and bad_epochs >= cfg.patience
-        _atomic_save(
+        save_atomic(
             {
                 "config": cfg.to_dict(),
                 "dataset": ed.info,
