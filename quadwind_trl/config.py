@@ -108,7 +108,9 @@ class ResidualConfig:
 
     action_scale: tuple[float, float, float, float] = (10.0, 5.0, 5.0, 5.0)  # paper, N and N m
     smoothing: float = 0.7  # paper; weight of the previous applied correction
-    slew_limit_per_step: tuple[float, float, float, float] = (2.0, 1.0, 1.0, 1.0)  # N, N m per 10 ms
+    # N, N m per 10 ms step (20 N/s, 2 N m/s): a full-scale wind correction builds up over about a
+    # second, while step-to-step exploration noise cannot kick the airframe (K_R is 10 N m/rad)
+    slew_limit_per_step: tuple[float, float, float, float] = (0.2, 0.02, 0.02, 0.02)
 
     def validate(self) -> None:
         _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
