@@ -198,3 +198,68 @@ def ood_panel(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
     d.set(ylabel="mean RMSE (m)", title="by trajectory")
     d.legend()
     return _save(fig, path)
+
+
+def _csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    data = np.loadtxt(path, delimiter=",", ndmin=2)
+    return data[:, 0], data[:, 1]
+
+
+def learning_curves(run_dirs: dict[str, Path], path: Path) -> Path:
+    """PPO learning curves from the runs' CSV logs: training reward per step, the deterministic
+    evaluation's improvement over PD, and the policy's exploration scale, against frames."""
+    fig, ax = plt.subplots(1, 3, figsize=(14, 4))
+    for label, run in run_dirs.items():
+        scalars = Path(run) / "logs" / "ppo" / "scalars"
+        frames, reward = _csv(scalars / "train" / "reward_mean.csv")
+        window = max(1, len(reward) // 20)
+        smooth = np.convolve(reward, np.ones(window) / window, mode="valid")
+        ax[0].plot(frames[window - 1 :], smooth, label=label)
+        improvement = scalars / "eval" / "improvement_rmse_xy_pct.csv"
+        if improvement.exists():
+            f, v = _csv(improvement)
+            ax[1].plot(f, v, "o-", label=label)
+        f, v = _csv(scalars / "train" / "action_scale.csv")
+        ax[2].plot(f, v, label=label)
+    ax[0].set(xlabel="frames", ylabel="reward per step (moving mean)", title="training reward")
+    ax[1].axhline(0, color="k", lw=0.8)
+    ax[1].set(xlabel="frames", ylabel="xy RMSE reduction vs PD (%)", title="deterministic evaluation")
+    ax[2].set(xlabel="frames", ylabel="pre-tanh std", title="exploration scale")
+    for a in ax:
+        a.legend()
+        a.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def pipeline_overview(path: Path) -> Path:
+    """The two-stage pipeline (paper Fig. 1) as a block diagram of this library's pieces."""
+    fig, a = plt.subplots(figsize=(12, 4.2))
+    a.axis("off")
+    boxes = {
+        "sim": (0.02, 0.55, "QuadWindEnv\n6-DOF quadrotor, PD cascade\nvon Karman turbulence, sensors"),
+        "feat": (0.27, 0.55, "FeatureHistory\n10 Hz features (48 / 22 ch.)\n60-sample window"),
+        "est": (0.52, 0.55, "WindEstimate\nfrozen attention-GRU\n+ spike-gated EMA (3 s)"),
+        "obs": (0.52, 0.08, "PolicyObservation\n23 inputs incl. (w_N, w_E)\nWindZero: ablation"),
+        "ppo": (0.77, 0.08, "PPO residual policy\nClipPPOLoss + GAE\nwrench added to PD"),
+        "data": (0.27, 0.08, "flight datasets\nPD flights, LHS wind cases\nestimator training"),
+    }
+    for x, y, text in boxes.values():
+        a.add_patch(plt.Rectangle((x, y), 0.2, 0.32, fill=True, color="#e8eef7", ec="#355c99", lw=1.2))
+        a.text(x + 0.1, y + 0.16, text, ha="center", va="center", fontsize=9)
+
+    def arrow(x0, y0, x1, y1, label=""):
+        a.annotate("", xy=(x1, y1), xytext=(x0, y0), arrowprops={"arrowstyle": "->", "color": "#355c99", "lw": 1.3})
+        if label:
+            a.text((x0 + x1) / 2, (y0 + y1) / 2 + 0.02, label, ha="center", fontsize=8, color="#355c99")
+
+    arrow(0.22, 0.71, 0.27, 0.71, "sensors")
+    arrow(0.47, 0.71, 0.52, 0.71)
+    arrow(0.62, 0.55, 0.62, 0.40, "wind_hat")
+    arrow(0.72, 0.24, 0.77, 0.24)
+    arrow(0.87, 0.40, 0.87, 0.88)
+    a.annotate("", xy=(0.12, 0.88), xytext=(0.87, 0.88), arrowprops={"arrowstyle": "->", "color": "#355c99", "lw": 1.3})
+    a.text(0.5, 0.91, "residual wrench (action)", ha="center", fontsize=8, color="#355c99")
+    arrow(0.12, 0.55, 0.27, 0.30, "PD flights")
+    arrow(0.47, 0.24, 0.56, 0.55, "trained weights")
+    a.set(xlim=(0, 1), ylim=(0, 1), title="quadwind_trl: the two-stage wind-aware pipeline")
+    return _save(fig, path)
