@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import resource
+import subprocess
+import sys
 import time
 from dataclasses import replace
 
@@ -57,17 +59,28 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     parser.add_argument("--via", default="step_and_maybe_reset", choices=["step", "step_and_maybe_reset"])
+    parser.add_argument("--single", action="store_true", help="measure exactly one configuration in this process")
     args = parser.parse_args()
-    torch.set_num_threads(args.threads)
+    if args.single:
+        torch.set_num_threads(args.threads)
+        n, compiled, atmosphere = args.sizes[0], bool(args.compile[0]), args.atmosphere[0]
+        rate = measure(n, compiled, atmosphere, args.seconds, args.via)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        print(
+            f"env_throughput N={n} compile={compiled} atmosphere={atmosphere} "
+            f"threads={args.threads} control_steps_per_s={rate:.0f} peak_rss_mb={peak:.0f}",
+            flush=True,
+        )
+        return
+    # one process per configuration, so each peak memory figure is its own
     for atmosphere in args.atmosphere:
         for compiled in args.compile:
             for n in args.sizes:
-                rate = measure(n, bool(compiled), atmosphere, args.seconds, args.via)
-                peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-                print(
-                    f"env_throughput N={n} compile={bool(compiled)} atmosphere={atmosphere} "
-                    f"threads={args.threads} control_steps_per_s={rate:.0f} peak_rss_mb={peak:.0f}",
-                    flush=True,
+                subprocess.run(
+                    [sys.executable, __file__, "--single", "--sizes", str(n), "--compile", str(compiled),
+                     "--atmosphere", atmosphere, "--seconds", str(args.seconds), "--threads", str(args.threads),
+                     "--via", args.via],
+                    check=True,
                 )
 
 
