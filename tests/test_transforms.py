@@ -2,6 +2,8 @@
 the frozen estimator, the WindZero ablation and the zero-action = PD invariant."""
 from __future__ import annotations
 
+import math
+
 from dataclasses import replace
 
 import pytest
@@ -52,8 +54,23 @@ def bundle():
 def test_observation_layout():
     assert OBSERVATION_DIM == 23 and len(OBSERVATION_CHANNELS) == 23
     assert WIND_INDICES == (13, 14)
-    assert OBSERVATION_CHANNELS[:13] == make_extractor("horizontal").channels[:13]
-    assert OBSERVATION_CHANNELS[15:] == ("err_E", "err_N", "err_U", "pd_thrust_over_weight", "ff_T", "ff_x", "ff_y", "ff_z")
+    feats = make_extractor("horizontal").channels
+    assert OBSERVATION_CHANNELS[0] == feats[0] and OBSERVATION_CHANNELS[3:13] == feats[3:13]
+    assert OBSERVATION_CHANNELS[1:3] == ("vel_fwd", "vel_left")
+    assert OBSERVATION_CHANNELS[13:] == (
+        "wind_fwd", "wind_left", "err_fwd", "err_left", "err_U", "pd_thrust_over_weight", "ff_T", "ff_x", "ff_y", "ff_z"
+    )
+
+
+def test_heading_frame_by_hand():
+    from quadwind_trl.transforms.observation import to_heading_frame
+
+    # facing north (yaw 90 deg): an eastward vector points to the right (left = -1)
+    f, l = to_heading_frame(torch.tensor(1.0), torch.tensor(0.0), torch.tensor(math.pi / 2))
+    assert abs(f.item()) < 1e-6 and abs(l.item() + 1.0) < 1e-6
+    # facing south-west (yaw -135 deg): a north-east vector points backwards
+    f, l = to_heading_frame(torch.tensor(1.0), torch.tensor(1.0), torch.tensor(-3 * math.pi / 4))
+    assert abs(f.item() + math.sqrt(2)) < 1e-6 and abs(l.item()) < 1e-6
 
 
 @pytest.mark.parametrize("wind_input", ["estimate", "zero", "truth"])
@@ -222,12 +239,18 @@ def test_raw_observation_matches_sensors_and_features():
     for _ in range(20):
         td["action"] = torch.full((2, 4), 0.3)
         td = env.step(td)["next"]
-    obs = td["observation"]
-    assert torch.equal(obs[:, :13], td["features"][:, :13])  # step 20 is a tick
-    assert torch.equal(obs[:, 13:15], td["wind_hat"])
+    from quadwind_trl.transforms.observation import to_heading_frame
+
+    obs, feats, yaw = td["observation"], td["features"], td["meas"][:, 9]
+    # step 20 is a tick: the kinematic block is the features', horizontal velocity in the heading frame
+    assert torch.equal(obs[:, 0], feats[:, 0]) and torch.equal(obs[:, 3:13], feats[:, 3:13])
+    assert torch.equal(obs[:, 1:3], torch.stack(to_heading_frame(feats[:, 1], feats[:, 2], yaw), -1))
     mw = td["truth", "mean_wind"]
     assert torch.equal(td["wind_hat"], torch.stack((mw[:, 1], mw[:, 0]), -1))
-    assert torch.equal(obs[:, 15:18], td["pos_error"])
+    assert torch.equal(obs[:, 13:15], torch.stack(to_heading_frame(mw[:, 0], mw[:, 1], yaw), -1))
+    err = td["pos_error"]
+    assert torch.equal(obs[:, 15:17], torch.stack(to_heading_frame(err[:, 0], err[:, 1], yaw), -1))
+    assert torch.equal(obs[:, 17], err[:, 2])
     torch.testing.assert_close(obs[:, 18], td["pd_wrench"][:, 0] / (cfg.vehicle.mass_kg * 9.81))
     torch.testing.assert_close(obs[:, 19:], td["ff_wrench"] / torch.tensor(cfg.residual.action_scale))
 

@@ -4,15 +4,18 @@
 index    name                    source
 =======  ======================  ================================================================
 0        alt                     barometric altitude (m)
-1-3      vel_E, vel_N, vel_U     GPS velocity, world ENU (m/s)
+1-3      vel_fwd, vel_left,      GPS velocity (m/s); horizontal part in the heading frame
+         vel_U
 4-6      acc_bx, acc_by, acc_bz  body kinematic acceleration from the accelerometer and the
                                  measured attitude, ``f_b - R^T (0, 0, g)`` (m/s^2)
 7-9      roll, pitch, yaw_err    measured attitude (rad); yaw relative to the reference heading,
                                  wrapped to [-pi, pi) (the estimator features' choice,
                                  docs/features.md)
 10-12    rate_p, rate_q, rate_r  gyro body rates (rad/s)
-13-14    wind_N, wind_E          ``wind_hat`` (m/s): the estimate, the oracle, or zero
-15-17    err_E, err_N, err_U     the env's ``pos_error``: the autopilot's navigation solution minus
+13-14    wind_fwd, wind_left     ``wind_hat`` (m/s, estimated north/east) in the heading frame: the
+                                 estimate, the oracle, or zero
+15-17    err_fwd, err_left,      the env's ``pos_error`` (horizontal part in the heading frame): the
+         err_U                   autopilot's navigation solution minus
                                  the reference (m); with the default
                                  ``ControllerConfig.feedback="estimate"`` a filter over GPS,
                                  barometer and accelerometer (the error the PD itself flies on)
@@ -28,6 +31,15 @@ reference and the controller's own outputs: no simulator truth enters the observ
 ``wind_hat`` under the oracle ``source="truth"``, and ``pos_error`` if the env's controller is
 configured to fly on the truth, ``ControllerConfig.feedback="truth"``). Velocities are the raw GPS
 ones, as in the estimator features.
+
+**The heading frame.** The paper lists the wind estimate as (north, east) and the position error
+without a frame. The policy acts through body torques, and our vehicles fly nose-first along the
+path, so the body turns continuously: in world axes the same error needs opposite torques on
+opposite legs, and the heading itself is not among the inputs (the third Euler channel is the yaw
+*relative to the reference heading*, as in the estimator features). So the three horizontal
+vectors (velocity, wind estimate, position error) enter rotated by the measured yaw into
+(forward, left): the same information, still 23 channels, with the wind in two fixed channels for
+``WindZero``. Our first PPO run, with world-frame inputs, learned a policy worse than PD.
 """
 from __future__ import annotations
 
@@ -40,16 +52,24 @@ from ..config import GRAVITY_M_S2, EnvConfig
 from ..data.features import FeatureExtractor, kinematic_channels
 from .wind import WIND_KEY
 
-OBSERVATION_CHANNELS: tuple[str, ...] = kinematic_channels("ref_relative") + (
-    "wind_N", "wind_E",
-    "err_E", "err_N", "err_U",
+OBSERVATION_CHANNELS: tuple[str, ...] = ("alt", "vel_fwd", "vel_left") + kinematic_channels("ref_relative")[3:] + (
+    "wind_fwd", "wind_left",
+    "err_fwd", "err_left", "err_U",
     "pd_thrust_over_weight",
     "ff_T", "ff_x", "ff_y", "ff_z",
 )  # fmt: skip
 OBSERVATION_DIM = len(OBSERVATION_CHANNELS)
 WIND_INDICES: tuple[int, int] = (13, 14)
 assert OBSERVATION_DIM == 23
-assert OBSERVATION_CHANNELS[WIND_INDICES[0]] == "wind_N" and OBSERVATION_CHANNELS[WIND_INDICES[1]] == "wind_E"
+assert OBSERVATION_CHANNELS[WIND_INDICES[0]] == "wind_fwd" and OBSERVATION_CHANNELS[WIND_INDICES[1]] == "wind_left"
+_YAW = 9  # measured yaw in ``meas`` (envs.sensors.SENSOR_CHANNELS)
+
+
+def to_heading_frame(east: torch.Tensor, north: torch.Tensor, yaw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """World (east, north) components -> (forward, left) in the frame of heading ``yaw`` (rad from
+    east, counter-clockwise)."""
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    return c * east + s * north, -s * east + c * north
 
 
 class PolicyObservation(Transform):
@@ -77,11 +97,20 @@ class PolicyObservation(Transform):
         record = {k: next_tensordict.get(k) for k in ("meas", "ref_pos", "ref_yaw")}
         _, feats = self._kin.step(self._kin.init_state(n, meas.device), record)
         ff = next_tensordict.get("ff_wrench") / self.action_scale.to(meas.device)
+        yaw = meas[..., _YAW]
+        vel_f, vel_l = to_heading_frame(feats[..., 1], feats[..., 2], yaw)
+        wind = next_tensordict.get(self.wind_key)  # (north, east)
+        wind_f, wind_l = to_heading_frame(wind[..., 1], wind[..., 0], yaw)
+        err = next_tensordict.get("pos_error")  # ENU
+        err_f, err_l = to_heading_frame(err[..., 0], err[..., 1], yaw)
         obs = torch.cat(
             (
-                feats[..., :13],
-                next_tensordict.get(self.wind_key),
-                next_tensordict.get("pos_error"),
+                feats[..., :1],
+                torch.stack((vel_f, vel_l), -1),
+                feats[..., 3:13],
+                torch.stack((wind_f, wind_l), -1),
+                torch.stack((err_f, err_l), -1),
+                err[..., 2:],
                 next_tensordict.get("pd_wrench")[..., :1] / self.weight_n,
                 ff,
             ),
