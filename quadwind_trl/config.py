@@ -111,9 +111,15 @@ class ResidualConfig:
     # N, N m per 10 ms step (20 N/s, 2 N m/s): a full-scale wind correction builds up over about a
     # second, while step-to-step exploration noise cannot kick the airframe (K_R is 10 N m/rad)
     slew_limit_per_step: tuple[float, float, float, float] = (0.2, 0.02, 0.02, 0.02)
+    # control steps one env step (one policy decision) holds its action for. The smoother and the
+    # slew limiter still act at every control step. 1 (default): a decision every 10 ms; the RL
+    # regimes use 10, a decision per 10 Hz log tick (see docs/rl.md: why).
+    hold_control_steps: int = 1
 
     def validate(self) -> None:
         _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
+        if self.hold_control_steps < 1:
+            raise ValueError("ResidualConfig.hold_control_steps must be >= 1")
         if min(self.slew_limit_per_step) <= 0:
             raise ValueError("ResidualConfig.slew_limit_per_step must be positive")
 

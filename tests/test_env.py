@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -10,7 +11,9 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.envs.utils import check_env_specs
 
-from quadwind_trl.config import GRAVITY_M_S2, EnvConfig, TrajectoryConfig, VehicleConfig
+from quadwind_trl.config import (
+    GRAVITY_M_S2, ControllerConfig, EnvConfig, ResidualConfig, RewardConfig, TrajectoryConfig, VehicleConfig,
+)
 from quadwind_trl.envs import TRAJECTORIES, QuadWindEnv, make_scenarios
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
@@ -169,6 +172,66 @@ def test_replay_under_another_controller_sees_the_same_world():
     assert torch.equal(wa, wb)
 
 
+def test_held_action_is_the_same_flight_sampled_every_hold_steps():
+    """One env step with ``hold_control_steps=10`` is ten 10 ms control steps under one action:
+    the same physics as ten single steps, its reward their mean (the crash penalty once)."""
+    cfg = EnvConfig(trajectories=short_trajectories())
+    held_cfg = replace(cfg, residual=replace(cfg.residual, hold_control_steps=10))
+    spec = make_scenarios(
+        2, traj_id=["figure8_h", "racetrack_h"], altitude_m=30.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
+        turb_seed=torch.tensor([3, 4]), sensor_seed=torch.tensor([5, 6]),
+    )
+    gen = torch.Generator().manual_seed(1)
+    actions = torch.rand(30, 2, 4, generator=gen) * 2 - 1
+    fine_env = QuadWindEnv(cfg, batch_size=[2])
+    td = fine_env.reset(scenario=spec)
+    fine, rewards = [], []
+    for k in range(300):
+        td["action"] = actions[k // 10]
+        td = fine_env.step(td)["next"]
+        fine.append(td.select(("truth", "pos"), "meas", "step").clone())
+        rewards.append(td["reward"].clone())
+    fine = torch.stack(fine, 1)
+    held = _stepped(QuadWindEnv(held_cfg, batch_size=[2]), spec, 30, action_fn=lambda k: actions[k])
+    assert torch.equal(held["step"], fine["step"][:, 9::10])
+    assert torch.equal(held["truth", "pos"], fine["truth", "pos"][:, 9::10])
+    assert torch.equal(held["meas"], fine["meas"][:, 9::10])
+    env = QuadWindEnv(held_cfg, batch_size=[2])
+    td = env.reset(scenario=spec)
+    td["action"] = actions[0]
+    r = env.step(td)["next", "reward"]
+    torch.testing.assert_close(r, torch.stack(rewards[:10]).mean(0))
+
+
+def test_held_action_freezes_a_row_that_crashes_inside_the_hold():
+    # truth feedback: the PD row hovers level (no GPS-noise transient at the airborne start);
+    # no smoothing or slew limit: the full roll torque tips row 0 over inside one hold
+    cfg = EnvConfig(trajectories=short_trajectories(), reward=RewardConfig(crash_tilt_deg=10.0),
+                    controller=ControllerConfig(feedback="truth"),
+                    residual=ResidualConfig(smoothing=0.0, slew_limit_per_step=(10.0, 10.0, 10.0, 10.0)))
+    held_cfg = replace(cfg, residual=replace(cfg.residual, hold_control_steps=10))
+    spec = make_scenarios(2, traj_id="hover", altitude_m=20.0, start_step=-1, wind_speed_ref_m_s=0.0, turb_intensity=0.0,
+                          turb_seed=torch.tensor([1, 2]), sensor_seed=torch.tensor([3, 4]))
+    # full roll torque on row 0 tips it past the crash tilt; row 1 flies PD
+    action = torch.tensor([[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0]])
+
+    def crash_step(env):
+        td = env.reset(scenario=spec)
+        start = int(env.state["step"][1])
+        for _ in range(1000):
+            td["action"] = action
+            td = env.step(td)["next"]
+            if td["terminated"][0]:
+                return td, int(env.state["step"][0]), int(env.state["step"][1]) - start
+        raise AssertionError("row 0 never crashed")
+
+    _, fine_crash, _ = crash_step(QuadWindEnv(cfg, batch_size=[2]))
+    td, held_crash, other = crash_step(QuadWindEnv(held_cfg, batch_size=[2]))
+    assert held_crash == fine_crash  # stopped at the crash, not at the end of the hold
+    assert other % 10 == 0 and not bool(td["terminated"][1])  # the other row ran the whole hold
+    assert float(td["reward"][0]) < EnvConfig().reward.crash_penalty + 1.0
+
+
 def test_partial_reset_touches_only_masked_rows():
     env = QuadWindEnv(batch_size=[4])
     sc = make_scenarios(4, traj_id=[0, 1, 2, 3], altitude_m=20.0, wind_speed_ref_m_s=5.0, turb_intensity=0.1,
@@ -200,7 +263,6 @@ def test_check_env_specs_and_rollout_shapes():
 def test_bad_config_fails_with_the_field_name():
     from dataclasses import replace
 
-    from quadwind_trl.config import ControllerConfig
 
     with pytest.raises(ValueError, match="max_tilt_deg"):
         QuadWindEnv(replace(EnvConfig(), controller=ControllerConfig(max_tilt_deg=120.0)))

@@ -12,7 +12,7 @@ from torchrl.envs import EnvBase
 from ..config import EnvConfig
 from .scenarios import SCENARIO_FIELDS, RegimeRanges, make_scenarios, random_scenarios
 from .sensors import NUM_SENSOR_CHANNELS
-from .simulator import QuadSimulator
+from .simulator import QuadSimulator, merge_rows
 from .trajectories import HORIZONTAL, TRAJECTORY_IDS
 
 
@@ -46,7 +46,8 @@ class QuadWindEnv(EnvBase):
 
     The action is the residual wrench in ``[-1, 1]^4`` (collective thrust, roll, pitch, yaw
     torques), scaled, smoothed, slew-limited and added to the PD cascade's output: ``action = 0``
-    is the PD baseline. One step is one 10 ms control step (5 physics substeps).
+    is the PD baseline. One step is ``ResidualConfig.hold_control_steps`` 10 ms control steps (5
+    physics substeps each) under the same action; the reward is Eq. (2) averaged over them.
 
     Observations (all batched ``[N, ...]``, frames in :mod:`quadwind_trl.envs`):
 
@@ -151,11 +152,21 @@ class QuadWindEnv(EnvBase):
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        self.state = self._sim_step(self.state, tensordict.get("action"))
-        out = self._observation(self.state)
-        terminated = self.state["terminated"]
-        truncated = (self.state["step"] >= self.state["end_step"]).unsqueeze(-1)
-        out.set("reward", self.state["reward"])
+        action = tensordict.get("action")
+        state = self._sim_step(self.state, action)
+        reward, steps = state["reward"], torch.ones_like(state["reward"])
+        # a held action: rows that end inside the hold stay frozen at their last state
+        for _ in range(self.config.residual.hold_control_steps - 1):
+            running = ~(state["terminated"] | (state["step"] >= state["end_step"]).unsqueeze(-1))
+            state = merge_rows(running.reshape(-1), self._sim_step(state, action), state)
+            reward = reward + torch.where(running, state["reward"], 0.0)
+            steps = steps + running.to(steps.dtype)
+        self.state = state
+        out = self._observation(state)
+        terminated = state["terminated"]
+        truncated = (state["step"] >= state["end_step"]).unsqueeze(-1)
+        # Eq. (2) averaged over the held control steps, the crash penalty once
+        out.set("reward", reward / steps + torch.where(terminated, self.config.reward.crash_penalty, 0.0))
         out.set("terminated", terminated)
         out.set("truncated", truncated)
         out.set("done", terminated | truncated)

@@ -69,7 +69,8 @@ def iter_flights(
 ) -> Iterator[FlightResults]:
     """Fly ``scenarios`` (batch ``[M]``) in chunks of the env's batch size, longest first.
 
-    The position error is scored at every control step after the pattern starts (for horizontal
+    The position error is scored at every env step (every control step, or every
+    ``hold_control_steps``-th when the env holds actions) after the pattern starts (for horizontal
     flights: after the climb) up to the end of the episode; the flight record holds every 10th
     control step from the episode start. ``policy=None`` flies the PD baseline (zero action).
     """
@@ -147,8 +148,11 @@ def _fly_chunk(
     count = torch.zeros(n, device=dev)
     crashed = torch.zeros(n, dtype=torch.bool, device=dev)
     zero_action = torch.zeros(n, 4, device=dev)
+    hold = base.config.residual.hold_control_steps  # control steps per env step
+    if log_every % hold:
+        raise ValueError(f"hold_control_steps={hold} must divide the {log_every}-step log interval")
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for i in range(1, num_steps + 1):
+        for i in range(1, -(-num_steps // hold) + 1):
             if policy is None:
                 td.set("action", zero_action)
             else:
@@ -161,13 +165,13 @@ def _fly_chunk(
             sq_z += torch.where(scored, err[..., 2].pow(2), 0.0)
             count += scored
             crashed |= active & nxt.get("terminated").squeeze(-1)
-            if i % log_every == 0:
+            if (i * hold) % log_every == 0:
                 records.append(nxt.select(*log_keys))
                 valid.append(active.clone())
             active = active & ~nxt.get("done").squeeze(-1)
             td = step_mdp(td, keep_other=True)
-    log = torch.stack(records, 1)[: index.numel()]
-    log["valid"] = torch.stack(valid, 1)[: index.numel()]
+    log = torch.stack(records[:num_logs], 1)[: index.numel()]
+    log["valid"] = torch.stack(valid[:num_logs], 1)[: index.numel()]
     assert log.batch_size[1] == num_logs
     k = index.numel()
     denom = count[:k].clamp_min(1)

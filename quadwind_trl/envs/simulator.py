@@ -154,7 +154,8 @@ class QuadSimulator:
         upright = quat_to_rotmat(new["quat"])[..., 2, 2:3] > self.cos_crash_tilt
         grounded = (new["pos"][..., 2:] <= 0.0) & (new["step"] > self.grace_steps).unsqueeze(-1)
         terminated = ~finite | ~upright | grounded
-        new["reward"] = torch.where(terminated, reward + rw.crash_penalty, reward).nan_to_num(rw.crash_penalty)
+        # the shaped part of Eq. (2); the env adds the crash penalty once per decision
+        new["reward"] = torch.where(finite, reward, 0.0)
         new["terminated"] = terminated
         return _sanitize(new, ~finite)
 

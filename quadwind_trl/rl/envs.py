@@ -40,16 +40,22 @@ Regime = Literal["horizontal", "vertical"]
 WindInput = Literal["estimate", "zero", "truth"]
 WIND_INPUTS = ("estimate", "zero", "truth")
 REWARD_W_Z = {"horizontal": 1.0, "vertical": 0.5}  # paper: beta
+# one policy decision per 10 Hz log tick, when the wind estimate updates (docs/rl.md: why)
+POLICY_HOLD_STEPS = 10
 DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
 
 
-def regime_config(regime: Regime, base: EnvConfig | None = None) -> EnvConfig:
+def regime_config(regime: Regime, base: EnvConfig | None = None, hold_control_steps: int = POLICY_HOLD_STEPS) -> EnvConfig:
     """``base`` (default ``EnvConfig()``) with the regime's reward weight ``w_z`` (paper: 1.0
-    horizontal, 0.5 vertical)."""
+    horizontal, 0.5 vertical) and the policy's decision period ``hold_control_steps``."""
     _check_regime(regime)
     base = base or EnvConfig()
-    return replace(base, reward=replace(base.reward, w_z=REWARD_W_Z[regime]))
+    return replace(
+        base,
+        reward=replace(base.reward, w_z=REWARD_W_Z[regime]),
+        residual=replace(base.residual, hold_control_steps=hold_control_steps),
+    )
 
 
 def _check_regime(regime: str) -> None:

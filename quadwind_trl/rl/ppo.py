@@ -295,7 +295,7 @@ class PPOTrainer:
     # --- pieces -------------------------------------------------------------------------------
 
     def _episode_steps_hint(self) -> int:
-        """Mean episode length (control steps) of the training trajectories: the range of the
+        """Mean episode length (env steps) of the training trajectories: the range of the
         first-episode de-synchronisation."""
         from ..envs.simulator import trajectory_library
         from ..envs.trajectories import TRAJECTORY_IDS
@@ -308,7 +308,7 @@ class PPOTrainer:
         ids = torch.tensor([TRAJECTORY_IDS[t] for t in traj])
         start, end = trajectory_library(s.env_config, "cpu").schedule(ids, torch.full((len(traj),), float(alt)))
         steps = end - start if s.start == "pattern" else end
-        return max(1, int(steps.float().mean()))
+        return max(1, int(steps.float().mean()) // s.env_config.residual.hold_control_steps)
 
     def _make_logger(self):
         from torchrl.record import CSVLogger
