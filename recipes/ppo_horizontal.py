@@ -2,7 +2,7 @@
 regimes"): the 5 fixed-altitude trajectories at 100 m, U in [3, 12] m/s, turbulence intensity in
 [0.05, 0.25], reward weights alpha = beta = 1. Episodes start on the ground and include the climb.
 
-    python recipes/ppo_horizontal.py                                   # full run: 3M env steps
+    python recipes/ppo_horizontal.py                                   # full run: 1.5M decisions (10 Hz)
     python recipes/ppo_horizontal.py --estimator checkpoints/est.pt    # a given estimator
     python recipes/ppo_horizontal.py --quick --untrained-estimator     # smoke test (seconds)
     python recipes/ppo_horizontal.py --resume --out runs/ppo_horizontal

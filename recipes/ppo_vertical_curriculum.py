@@ -6,7 +6,7 @@ Curriculum (cumulative; stage k starts after k quarters of the frames): vertical
 + spiral_ascent -> + figure8_3d -> + lawnmower_scan. At each stage change the running episodes are
 truncated so the new trajectory set takes effect at once.
 
-    python recipes/ppo_vertical_curriculum.py                                 # full run: 3M env steps
+    python recipes/ppo_vertical_curriculum.py                                 # full run: 1.5M decisions (10 Hz)
     python recipes/ppo_vertical_curriculum.py --quick --untrained-estimator   # smoke test (seconds)
     python recipes/ppo_vertical_curriculum.py --resume --out runs/ppo_vertical
 

@@ -2,16 +2,20 @@
 
     python recipes/report.py
 
-Reads ``results/*.json`` (PD baseline, ...) and the section files in ``docs/results/`` (written by
-the estimator and ablation recipes), and writes ``docs/results.md`` with the paper's figures
+Reads ``results/*.json`` (PD baseline, ...), the shipped policies' manifests, the section files
+in ``docs/results/`` (written by the estimator and ablation recipes), and the PPO runs' logs in
+``runs/`` if present (learning curves), and writes ``docs/results.md`` with the paper's figures
 beside ours.
 """
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
+from quadwind_trl.evaluation.figures import learning_curves
 from quadwind_trl.evaluation.report import build_report
+from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 
 PREAMBLE = """# Results: ours beside the paper's
 
@@ -26,8 +30,20 @@ def main() -> None:
     parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--sections", type=Path, default=Path("docs/results"))
     parser.add_argument("--out", type=Path, default=Path("docs/results.md"))
+    parser.add_argument("--runs", type=Path, default=Path("runs"),
+                        help="the PPO runs (RUNS/ppo_<regime>): their manifests, else the shipped policies', and "
+                             "their logs, which redraw figures/learning_curves.png beside --out")
     args = parser.parse_args()
-    text = build_report(args.results, args.sections, PREAMBLE)
+    manifests = {}
+    for regime in ("horizontal", "vertical"):
+        for path in (args.runs / f"ppo_{regime}" / "policy.json", CHECKPOINT_DIR / f"policy_{regime}.json"):
+            if path.exists():
+                manifests[regime] = json.loads(path.read_text())
+                break
+    runs = {r: args.runs / f"ppo_{r}" for r in manifests if (args.runs / f"ppo_{r}" / "logs").exists()}
+    if runs:
+        learning_curves(runs, args.out.parent / "figures" / "learning_curves.png")
+    text = build_report(args.results, args.sections, PREAMBLE, manifests)
     tmp = args.out.with_name(args.out.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(args.out)

@@ -50,7 +50,8 @@ def stages(quick: bool) -> list[Stage]:
                   q / "results" / "pd_baseline.json"),
             Stage("ablation", ("ablation.py", "--quick", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
                                "--estimator", str(est["horizontal"]), str(est["vertical"])), q / "results" / "ablation_ood.json"),
-            Stage("report", ("report.py", "--results", str(q / "results"), "--sections", str(q / "sections"), "--out", str(q / "results.md")),
+            Stage("report", ("report.py", "--results", str(q / "results"), "--sections", str(q / "sections"), "--out", str(q / "results.md"),
+                             "--runs", str(q)),
                   q / "results.md"),
         ]
         return out
@@ -64,7 +65,7 @@ def stages(quick: bool) -> list[Stage]:
         *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--threads", "1", "--resume",
                                    "--no-progress"), CHECKPOINTS / f"estimator_{r}.pt") for r in data),
         *(Stage(f"estimator-{r}-evaluation", ("evaluate_estimator.py", "--regime", r, "--data", str(data[r]), "--unseen-data",
-                                              str(unseen[r]), "--threads", "1", "--update-checkpoint"),
+                                              str(unseen[r]), "--threads", "1"),
                 ROOT / "results" / f"estimation_{r}.json") for r in data),
         Stage("ppo-horizontal", ("ppo_horizontal.py", "--out", "runs/ppo_horizontal", "--resume", "--no-progress"),
               CHECKPOINTS / "policy_horizontal.pt"),

@@ -201,8 +201,12 @@ def ood_panel(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
 
 
 def _csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A scalar's (frames, values). A resumed run logs again the frames its interrupted
+    predecessor logged after the last checkpoint: the later row of each frame wins."""
     data = np.loadtxt(path, delimiter=",", ndmin=2)
-    return data[:, 0], data[:, 1]
+    latest = dict(zip(data[:, 0].tolist(), data[:, 1].tolist()))
+    frames = np.array(sorted(latest))
+    return frames, np.array([latest[f] for f in frames])
 
 
 def learning_curves(run_dirs: dict[str, Path], path: Path) -> Path:

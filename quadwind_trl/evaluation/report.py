@@ -169,12 +169,30 @@ def ablation_section(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def build_report(results_dir: Path, sections_dir: Path, preamble: str) -> str:
+def training_section(manifests: dict[str, dict]) -> str:
+    """The shipped policies' training runs (from their JSON manifests): budget, wall time and the
+    periodic deterministic evaluations against PD."""
+    lines = ["## PPO training runs", "",
+             "Each run's periodic evaluation flies a fixed set of held-out sweep episodes deterministically, paired with PD",
+             "(`improvement` = 1 - mean RL xy RMSE / mean PD xy RMSE). Frames are policy decisions at 10 Hz (docs/rl.md).", "",
+             "| regime | command | decisions | wall time (min) | evaluations: frames -> xy improvement vs PD (win rate) |",
+             "|---|---|---|---|---|"]
+    for regime, m in manifests.items():
+        evals = "; ".join(f"{int(e['frames']):,} -> {e['improvement_rmse_xy_pct']:+.1f} % ({e['win_rate']:.2f})"
+                          for e in m.get("evals", []))
+        lines.append(f"| {regime} | `{m['command'].split('/')[-1]}` | {m['frames']:,} | {m['wall_time_s'] / 60:.0f} | {evals} |")
+    lines += ["", "![learning curves](figures/learning_curves.png)", ""]
+    return "\n".join(lines)
+
+
+def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None) -> str:
     """The whole results page: the preamble, then every section whose inputs exist."""
     parts = [preamble.rstrip(), ""]
     pd_file = results_dir / "pd_baseline.json"
     if pd_file.exists():
         parts.append(pd_calibration_section(json.loads(pd_file.read_text())))
+    if policy_manifests:
+        parts.append(training_section(policy_manifests))
     ablations = {name: json.loads((results_dir / f"ablation_{name}.json").read_text())
                  for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
     if ablations:

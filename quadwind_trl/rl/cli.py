@@ -20,7 +20,7 @@ from .ppo import PPOConfig, PPOTrainer, default_eval_scenarios, vertical_curricu
 DEFAULT_EVAL_EPISODES = {"horizontal": 10, "vertical": 8}
 # frames between evaluations: a vertical evaluation flies up to 30,900 steps (~5 min), a horizontal
 # one 21,740 (~3.5 min) at ~10 ms per step on this 2-core machine
-DEFAULT_EVAL_EVERY = {"horizontal": 1_000_000, "vertical": 1_500_000}
+DEFAULT_EVAL_EVERY = {"horizontal": 500_000, "vertical": 750_000}
 
 
 def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
@@ -30,7 +30,7 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
                    help=f"estimator checkpoint (default: the shipped {default_estimator_path(regime)})")
     p.add_argument("--untrained-estimator", action="store_true",
                    help="use a seeded random estimator when no checkpoint is given (smoke tests only)")
-    p.add_argument("--total-frames", type=int, default=None, help="env steps to train for (default 3,000,000)")
+    p.add_argument("--total-frames", type=int, default=None, help="policy decisions (env steps, 0.1 s of flight each) to train for (default 1,500,000)")
     p.add_argument("--num-envs", type=int, default=None, help="parallel sub-envs (default 64)")
     p.add_argument("--steps-per-env", type=int, default=None,
                    help="steps per sub-env per batch (default 256: 64 x 256 = 16384 = the paper's 8 envs x 2048)")

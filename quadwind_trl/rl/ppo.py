@@ -20,7 +20,8 @@ advantage normalisation     (SB3 default: yes)     per minibatch
 grad-norm clip              0.5                    0.5 (actor + critic parameters together)
 observation normalisation   running mean/var,      VecNormV2(decay=1.0: cumulative, as SB3),
                             frozen at evaluation   clipped to +-10, frozen at evaluation
-total                       ~3M env steps          --total-frames (default 3,000,000)
+total                       ~3M env steps at       --total-frames: default 1.5M decisions at
+                            100 Hz (8.3 h flight)  10 Hz (42 h of flight; docs/rl.md)
 ==========================  =====================  =============================================
 
 Initialisation follows SB3: orthogonal weights, gain sqrt(2) in the hidden layers, 0.01 on the
@@ -62,7 +63,7 @@ ACTIVATIONS = {"tanh": nn.Tanh, "elu": nn.ELU, "relu": nn.ReLU}
 
 @dataclass(frozen=True)
 class PPOConfig:
-    total_frames: int = 3_000_000  # paper: ~3M env steps
+    total_frames: int = 1_500_000  # decisions at 10 Hz; paper: ~3M env steps at 100 Hz (docs/rl.md)
     num_envs: int = 64
     steps_per_env: int = 256  # frames per batch = num_envs * steps_per_env (paper: 2048 per env)
     epochs: int = 10  # paper
