@@ -7,7 +7,7 @@
 Each stage is one of the recipes in this folder, run as its own process; a stage whose output
 already exists is skipped (``--force STAGE`` reruns it), and the long stages resume from their
 last checkpoint when interrupted, so a full reproduction can span several sessions.
-``--quick`` writes everything under ``runs/quick/`` and never touches the shipped checkpoints,
+``--quick`` writes everything under ``runs/quick/`` (or ``--out DIR``) and never touches the shipped checkpoints,
 ``results/`` or ``docs/``; ``--full`` writes the shipped artifacts.
 """
 from __future__ import annotations
@@ -31,9 +31,9 @@ class Stage:
     output: Path  # the stage is done when this exists
 
 
-def stages(quick: bool) -> list[Stage]:
+def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage]:
     if quick:
-        q = ROOT / "runs" / "quick"
+        q = quick_dir
         data = {r: q / "data" / f"flights_{r}" for r in ("horizontal", "vertical")}
         est = {r: q / f"estimator_{r}.pt" for r in ("horizontal", "vertical")}
         pol = {r: q / f"ppo_{r}" for r in ("horizontal", "vertical")}
@@ -49,7 +49,8 @@ def stages(quick: bool) -> list[Stage]:
             Stage("pd-baseline", ("pd_baseline.py", "--quick", "--out", str(q / "results" / "pd_baseline.json")),
                   q / "results" / "pd_baseline.json"),
             Stage("ablation", ("ablation.py", "--quick", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
-                               "--estimator", str(est["horizontal"]), str(est["vertical"])), q / "results" / "ablation_ood.json"),
+                               "--estimator", str(est["horizontal"]), str(est["vertical"]), "--results", str(q / "results"),
+                               "--figures", str(q / "figures")), q / "results" / "ablation_ood.json"),
             Stage("report", ("report.py", "--results", str(q / "results"), "--sections", str(q / "sections"), "--out", str(q / "results.md"),
                              "--runs", str(q)),
                   q / "results.md"),
@@ -93,9 +94,10 @@ def main() -> None:
     scale.add_argument("--full", action="store_true")
     parser.add_argument("--force", nargs="*", default=[], help="stages to rerun even if their output exists ('all' for every stage)")
     parser.add_argument("--only", nargs="*", default=None, help="run only these stages")
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "quick", help="--quick: where everything goes (default runs/quick)")
     args = parser.parse_args()
 
-    plan = stages(args.quick)
+    plan = stages(args.quick, args.out.resolve())
     names = [s.name for s in plan]
     for name in (args.only or []) + [f for f in args.force if f != "all"]:
         if name not in names:
@@ -106,7 +108,7 @@ def main() -> None:
             continue
         forced = "all" in args.force or stage.name in args.force
         if stage.output.exists() and not forced and stage.name != "report":
-            print(f"[{stage.name}] done already ({stage.output.relative_to(ROOT)}); skipping", flush=True)
+            print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
             continue
         cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
         if forced and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
