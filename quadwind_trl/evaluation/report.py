@@ -116,8 +116,8 @@ def _wind_table(block: dict, reference: dict, with_oracle: bool) -> list[str]:
 def ablation_section(results: dict[str, dict]) -> str:
     """The paper's Tables 3-6, the out-of-distribution probe and the oracle row."""
     lines = ["## Wind-aware RL against PD: the paired ablation", ""]
-    any_result = next(iter(results.values()))
-    lines.append(f"Command: `{any_result['command']}` (commit `{any_result.get('git_commit')}`). Every controller flies the")
+    runs = sorted({(r["command"], r.get("git_commit")) for r in results.values()})
+    lines.append("Commands: " + "; ".join(f"`{c}` (commit `{g}`)" for c, g in runs) + ". Every controller flies the")
     lines.append("same scenarios with bitwise-identical wind fields and sensor noise. Improvement = 1 - mean RL / mean PD with a")
     lines.append("paired bootstrap 95 % interval (10,000 resamples); wins = pairs where wind-aware RL is strictly better.")
     lines.append("Wind-blind RL is the same policy with its two wind inputs zeroed; the oracle is the same policy fed the true")
@@ -180,7 +180,7 @@ def training_section(manifests: dict[str, dict]) -> str:
     for regime, m in manifests.items():
         evals = "; ".join(f"{int(e['frames']):,} -> {e['improvement_rmse_xy_pct']:+.1f} % ({e['win_rate']:.2f})"
                           for e in m.get("evals", []))
-        lines.append(f"| {regime} | `{m['command'].split('/')[-1]}` | {m['frames']:,} | {m['wall_time_s'] / 60:.0f} | {evals} |")
+        lines.append(f"| {regime} | `python recipes/{m['command'].split('recipes/', 1)[-1]}` | {m['frames']:,} | {m['wall_time_s'] / 60:.0f} | {evals} |")
     lines += ["", "![learning curves](figures/learning_curves.png)", ""]
     return "\n".join(lines)
 
