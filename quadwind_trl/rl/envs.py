@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Literal
+from typing import Literal, TypeVar
 
 import torch
 from torchrl.envs import ClipTransform, Compose, RewardSum, StepCounter, TransformedEnv, VecNormV2
@@ -36,6 +36,7 @@ from ..modules.wind_estimator import CHECKPOINT_DIR, AttentionGRUEstimator, Esti
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL
 from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, WindZero
 
+T = TypeVar("T")
 Regime = Literal["horizontal", "vertical"]
 WindInput = Literal["estimate", "zero", "truth"]
 WIND_INPUTS = ("estimate", "zero", "truth")
@@ -172,25 +173,24 @@ def make_env(
     return env
 
 
-def vecnorm(env: TransformedEnv) -> VecNormV2:
+def find_transform(env: TransformedEnv, cls: type[T]) -> T:
+    """The first transform of type ``cls`` in ``env``'s stack."""
     for t in env.transform:
-        if isinstance(t, VecNormV2):
+        if isinstance(t, cls):
             return t
-    raise KeyError("no VecNormV2 in this env's transforms")
+    raise KeyError(f"no {cls.__name__} in this env's transforms")
+
+
+def vecnorm(env: TransformedEnv) -> VecNormV2:
+    return find_transform(env, VecNormV2)
 
 
 def episode_control(env: TransformedEnv) -> EpisodeControl:
-    for t in env.transform:
-        if isinstance(t, EpisodeControl):
-            return t
-    raise KeyError("no EpisodeControl in this env's transforms")
+    return find_transform(env, EpisodeControl)
 
 
 def wind_estimate(env: TransformedEnv) -> WindEstimate:
-    for t in env.transform:
-        if isinstance(t, WindEstimate):
-            return t
-    raise KeyError("no WindEstimate in this env's transforms")
+    return find_transform(env, WindEstimate)
 
 
 def vecnorm_state_dict(env: TransformedEnv) -> dict:
@@ -278,6 +278,7 @@ __all__ = [
     "untrained_estimator",
     "load_estimator",
     "default_estimator_path",
+    "find_transform",
     "vecnorm",
     "vecnorm_state_dict",
     "load_vecnorm_state",
