@@ -286,6 +286,11 @@ class EnvConfig:
             sub = getattr(self, f.name)
             if hasattr(sub, "validate"):
                 sub.validate()
+        hold, log_every = self.residual.hold_control_steps, self.timing.log_every_control_steps
+        if log_every % hold:
+            # an env step must end on every 10 Hz tick, or the feature history skips samples
+            raise ValueError(f"ResidualConfig.hold_control_steps={hold} must divide "
+                             f"TimingConfig.log_every_control_steps={log_every}")
         return self
 
 

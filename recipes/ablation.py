@@ -24,7 +24,8 @@ from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, summarize_ablation
 from quadwind_trl.evaluation.tracking import quick_subset
 from quadwind_trl.manifest import git_commit, write_json
-from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR, EstimatorBundle
+from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
+from quadwind_trl.rl.envs import load_estimator
 from quadwind_trl.regimes import SWEEPS
 
 REGIME = {"horizontal": "horizontal", "ood": "horizontal", "vertical": "vertical"}
@@ -72,7 +73,7 @@ def main() -> None:
     for name in args.sweeps:
         sweep, regime = SWEEPS[name], REGIME[name]
         policy_path = checkpoint("policy", regime, args.policy)
-        estimator = EstimatorBundle.load(checkpoint("estimator", regime, args.estimator))
+        estimator = load_estimator(regime, checkpoint("estimator", regime, args.estimator))
         scenarios = sweep.scenarios()
         override = None
         if args.quick:

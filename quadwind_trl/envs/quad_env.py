@@ -156,15 +156,15 @@ class QuadWindEnv(EnvBase):
         state = self._sim_step(self.state, action)
         reward, steps = state["reward"], torch.ones_like(state["reward"])
         # a held action: rows that end inside the hold stay frozen at their last state
+        terminated, truncated = state["terminated"], (state["step"] >= state["end_step"]).unsqueeze(-1)
         for _ in range(self.config.residual.hold_control_steps - 1):
-            running = ~(state["terminated"] | (state["step"] >= state["end_step"]).unsqueeze(-1))
+            running = ~(terminated | truncated)
             state = merge_rows(running.reshape(-1), self._sim_step(state, action), state)
             reward = reward + torch.where(running, state["reward"], 0.0)
             steps = steps + running.to(steps.dtype)
+            terminated, truncated = state["terminated"], (state["step"] >= state["end_step"]).unsqueeze(-1)
         self.state = state
         out = self._observation(state)
-        terminated = state["terminated"]
-        truncated = (state["step"] >= state["end_step"]).unsqueeze(-1)
         # Eq. (2) averaged over the held control steps, the crash penalty once
         out.set("reward", reward / steps + torch.where(terminated, self.config.reward.crash_penalty, 0.0))
         out.set("terminated", terminated)

@@ -24,11 +24,12 @@ from ..envs.runner import FlightResults, fly
 from ..envs.trajectories import TRAJECTORIES
 from ..modules.wind_estimator import EstimatorBundle
 from ..regimes import EvalSweep
-from .grouping import group_stats
+from .grouping import summarize
 from .statistics import decompose, paired_summary
 
 CONTROLLERS = ("pd", "blind", "aware", "oracle")
-WIND_INPUT = {"pd": "estimate", "blind": "zero", "aware": "estimate", "oracle": "truth"}
+# PD ignores its observation: "truth" spares it the estimator (the physics is the same either way)
+WIND_INPUT = {"pd": "truth", "blind": "zero", "aware": "estimate", "oracle": "truth"}
 TRACE_KEYS = (("truth", "pos"), "ref_pos", ("truth", "mean_wind"), "step")
 
 
@@ -109,7 +110,7 @@ def summarize_ablation(sweep: EvalSweep, scenarios: TensorDictBase, results: dic
         for name in results:
             if name != "pd":
                 block[name] = paired_summary(table[f"pd_{metric}"], table[f"{name}_{metric}"])
-            stats = group_stats(table[f"{name}_{metric}"], torch.zeros(table.batch_size[0]))[0.0]
+            stats = summarize(table[f"{name}_{metric}"])
             block.setdefault("distribution", {})[name] = stats.as_dict()
         if {"pd", "blind", "aware"} <= set(results):
             block["decomposition"] = decompose(table[f"pd_{metric}"], table[f"blind_{metric}"], table[f"aware_{metric}"]).as_dict()

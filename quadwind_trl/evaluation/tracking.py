@@ -10,7 +10,7 @@ from torchrl.envs import EnvBase
 from ..envs.runner import fly
 from ..envs.trajectories import TRAJECTORIES
 from ..regimes import EvalSweep
-from .grouping import group_stats
+from .grouping import group_stats, summarize
 
 
 def fly_sweep(
@@ -37,7 +37,7 @@ def tracking_tables(episodes: TensorDictBase, metric: str = "rmse_xy") -> dict:
     by_traj = group_stats(values, episodes["traj_id"])
     return {
         "metric": metric,
-        "all": group_stats(values, torch.zeros_like(values))[0.0].as_dict(),
+        "all": summarize(values).as_dict(),
         "by_wind": {f"{k:g}": v.as_dict() for k, v in by_wind.items()},
         "by_trajectory": {TRAJECTORIES[int(k)]: v.as_dict() for k, v in by_traj.items()},
         "crashed": int(episodes["crashed"].sum()),

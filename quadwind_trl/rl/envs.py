@@ -155,7 +155,7 @@ def make_env(
     base = QuadWindEnv(cfg, batch_size=[num_envs], device=device, scenario_sampler=sampler, seed=seed, compile_step=compile_step)
     source = "truth" if wind_input == "truth" else "estimate"
     transforms = [
-        EpisodeControl(desync_steps, seed=seed),
+        EpisodeControl(desync_steps, seed=seed, align=cfg.timing.log_every_control_steps // cfg.residual.hold_control_steps),
         WindEstimate(estimator_bundle if source == "estimate" else None, source=source, config=cfg),
         PolicyObservation(cfg),
         RunningObsNorm(in_keys=["observation"], decay=1.0, eps=1e-4, reduce_batch_dims=True),
@@ -195,7 +195,7 @@ def wind_estimate(env: TransformedEnv) -> WindEstimate:
 
 def vecnorm_state_dict(env: TransformedEnv) -> dict:
     """The normalisation statistics (a plain, ``torch.load(weights_only=True)``-able dict)."""
-    return {k: v for k, v in vecnorm(env).state_dict().items()}
+    return dict(vecnorm(env).state_dict())
 
 
 def load_vecnorm_state(env: TransformedEnv, state: dict) -> None:

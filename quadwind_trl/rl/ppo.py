@@ -54,6 +54,7 @@ from torchrl.objectives.value import GAE
 from ..config import config_to_dict
 from ..manifest import git_commit, save_atomic, write_json
 from ..envs.runner import fly
+from ..evaluation.statistics import improvement, win_rate
 from ..transforms import OBSERVATION_CHANNELS, OBSERVATION_DIM
 from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm, vecnorm_state_dict, wind_estimate
 
@@ -190,9 +191,10 @@ def paired_metrics(policy_res, pd_res) -> dict[str, float]:
         rl, pd = getattr(policy_res, name).double(), getattr(pd_res, name).double()
         out[f"{name}"] = float(rl.mean())
         out[f"pd_{name}"] = float(pd.mean())
-        out[f"improvement_{name}_pct"] = float(100.0 * (1.0 - rl.mean() / pd.mean().clamp_min(1e-12)))
+        out[f"improvement_{name}_pct"] = improvement(pd, rl)
     out["improvement_vs_pd"] = out["improvement_rmse_pct"]
-    out["win_rate"] = float((policy_res.rmse < pd_res.rmse).double().mean())
+    wins, pairs = win_rate(pd_res.rmse, policy_res.rmse)
+    out["win_rate"] = wins / pairs
     out["crashed"] = int(policy_res.crashed.sum())
     out["episodes"] = int(policy_res.rmse.numel())
     return out
@@ -355,11 +357,14 @@ class PPOTrainer:
         if latest.exists() and not resume:
             raise FileExistsError(f"{latest} exists: pass --resume to continue that run, or choose another --out")
         if resume and not latest.exists():
-            raise FileNotFoundError(f"--resume: no checkpoint at {latest}")
+            # resumable stages (reproduce.py) always pass --resume: nothing to resume is a fresh start
+            print(f"--resume: no checkpoint at {latest}; starting a new run", flush=True)
+            resume = False
         ckpt_dir.mkdir(parents=True, exist_ok=True)
         torch.manual_seed(cfg.seed)
 
         actor, value = build_actor_critic(cfg)
+        actor, value = actor.to(self.spec.device), value.to(self.spec.device)
         loss = ClipPPOLoss(
             actor, value,
             clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coeff, critic_coeff=cfg.critic_coeff,

@@ -2,10 +2,11 @@
 
 All sub-envs of a training run start on the ground at the same instant; left alone, every row
 would then climb, cruise and land in lock step and each batch would hold a single phase of flight.
-:class:`EpisodeControl` truncates each row's *first* episode after a random number of control steps
+:class:`EpisodeControl` truncates each row's *first* episode after a random number of env steps
 (uniform over the multiples of ``align`` in ``[align, desync_steps]``, drawn once from a seeded
 generator), which spreads the rows over the flight phases from the second episode on. Later
-episodes run to their natural end. Limits are multiples of ``align`` (10, the log interval) so that
+episodes run to their natural end. Limits are multiples of ``align`` (the env steps in one log
+interval: 10 for 10 ms env steps, 1 when an env step holds 10 control steps) so that
 restarted rows stay in phase with the 10 Hz ticks of the others (episodes start and end on ticks),
 which keeps the estimator transform on its one-batch-per-tick fast path.
 
@@ -36,7 +37,7 @@ class EpisodeControl(Transform):
         self.align = int(align)
         self.seed = int(seed)
         self.limit: torch.Tensor | None = None  # [N] first-episode length, 0 = none
-        self.count: torch.Tensor | None = None  # [N] control steps into the current episode
+        self.count: torch.Tensor | None = None  # [N] env steps into the current episode
         self.first: torch.Tensor | None = None  # [N] bool: still in the first episode
         self._force = False
 
@@ -71,8 +72,7 @@ class EpisodeControl(Transform):
         if self._force:
             cut = torch.ones_like(cut)
             self._force = False
-        if bool(cut.any()):
-            cut = cut.unsqueeze(-1)
-            next_tensordict.set("truncated", next_tensordict.get("truncated") | cut)
-            next_tensordict.set("done", next_tensordict.get("done") | cut)
+        cut = cut.unsqueeze(-1)  # applied unconditionally: no host sync on the step
+        next_tensordict.set("truncated", next_tensordict.get("truncated") | cut)
+        next_tensordict.set("done", next_tensordict.get("done") | cut)
         return next_tensordict

@@ -179,11 +179,13 @@ class WindZero(Transform):
 
             indices = WIND_INDICES
         self.indices = None if indices is None else tuple(int(i) for i in indices)
+        if self.indices is not None:  # a buffer: moves with the transform, no copy per step
+            self.register_buffer("_index", torch.tensor(self.indices), persistent=False)
 
     def _apply_transform(self, x: Tensor) -> Tensor:
         if self.indices is None:
             return torch.zeros_like(x)
-        return x.index_fill(-1, torch.tensor(self.indices, device=x.device), 0.0)
+        return x.index_fill(-1, self._index.to(x.device), 0.0)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return self._call(tensordict_reset)
