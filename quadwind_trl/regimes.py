@@ -113,3 +113,4 @@ VERTICAL_SWEEP = EvalSweep("vertical", VERTICAL, (3.0, 5.0, 7.0, 9.0), (0.05, 0.
 # 5 trajectories x 3 speeds x 2 intensities x 3 seeds = 90
 OOD_SWEEP = EvalSweep("ood", HORIZONTAL, (13.0, 14.0, 15.0), (0.1, 0.2), 3, HORIZONTAL_RL)
 SWEEPS = {s.name: s for s in (HORIZONTAL_SWEEP, VERTICAL_SWEEP, OOD_SWEEP)}
+SWEEP_REGIME = {"horizontal": "horizontal", "vertical": "vertical", "ood": "horizontal"}  # whose policy flies it

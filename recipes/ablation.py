@@ -15,20 +15,17 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, summarize_ablation
-from quadwind_trl.evaluation.tracking import quick_subset
+from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import git_commit, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 from quadwind_trl.rl.envs import load_estimator
-from quadwind_trl.regimes import SWEEPS
-
-REGIME = {"horizontal": "horizontal", "ood": "horizontal", "vertical": "vertical"}
+from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
 
 
 def draw(sweep: str, scenarios, results, summary, fig_dir: Path) -> list[Path]:
@@ -71,14 +68,10 @@ def main() -> None:
         return CHECKPOINT_DIR / f"{kind}_{regime}.pt"
 
     for name in args.sweeps:
-        sweep, regime = SWEEPS[name], REGIME[name]
+        sweep, regime = SWEEPS[name], SWEEP_REGIME[name]
         policy_path = checkpoint("policy", regime, args.policy)
         estimator = load_estimator(regime, checkpoint("estimator", regime, args.estimator))
-        scenarios = sweep.scenarios()
-        override = None
-        if args.quick:
-            scenarios = quick_subset(sweep, scenarios)
-            override = lambda cfg: replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=20.0, vertical_top_m=40.0))  # noqa: E731
+        scenarios, override = sweep_setup(sweep, args.quick)
         start = time.perf_counter()
         results = fly_controllers(regime, scenarios, policy_path, estimator, tuple(args.controllers), progress=True,
                                   config_override=override)

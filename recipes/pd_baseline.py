@@ -11,14 +11,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 from quadwind_trl.config import EnvConfig, config_to_dict
 from quadwind_trl.envs import QuadWindEnv
-from quadwind_trl.evaluation.tracking import fly_sweep, quick_subset, tracking_tables
+from quadwind_trl.evaluation.tracking import fly_sweep, quick_config, quick_subset, tracking_tables
 from quadwind_trl.manifest import git_commit, write_json
 from quadwind_trl.regimes import SWEEPS
 
@@ -35,7 +34,7 @@ def main() -> None:
 
     cfg = EnvConfig()
     if args.quick:
-        cfg = replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=20.0, vertical_top_m=40.0))
+        cfg = quick_config(cfg)
         print("--quick: horizontal patterns 20 s, vertical climbs to 40 m, one seed and intensity per sweep")
     report = {"command": " ".join(sys.argv), "git_commit": git_commit(), "config": config_to_dict(cfg), "sweeps": {}}
     for name in args.sweeps:

@@ -1,5 +1,5 @@
 """Every stage of the paper, end to end: datasets -> estimators -> PPO policies -> PD baseline
--> paired ablation -> report.
+-> paired ablation -> error budget (full runs only) -> report.
 
     python recipes/reproduce.py --quick     # toy scale, a few minutes on 2 cores (scripts/quickstart.sh)
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
@@ -74,6 +74,8 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
               CHECKPOINTS / "policy_vertical.pt"),
         Stage("pd-baseline", ("pd_baseline.py",), ROOT / "results" / "pd_baseline.json"),
         Stage("ablation", ("ablation.py",), ROOT / "results" / "ablation_ood.json"),
+        *(Stage(f"error-budget-{s}", ("error_budget.py", "--sweep", s), ROOT / "results" / f"error_budget_{s}.json")
+          for s in ("horizontal", "vertical")),
         Stage("report", ("report.py",), ROOT / "docs" / "results.md"),
     ]
 

@@ -281,6 +281,20 @@ def test_pd_tracks_every_trajectory_in_still_air():
     drag_lag = HALF_RHO * VEH.drag_area_xy_m2 * cfg.trajectories.cruise_speed_m_s**2 / (VEH.mass_kg * 5.0)
     assert (res.rmse < drag_lag + 0.05).all(), dict(zip(TRAJECTORIES, res.rmse.tolist()))
     assert res.rmse[0] > 0.8 * drag_lag  # the loiter circle shows the lag
+    assert (res.nav_rmse_xy == 0).all() and (res.nav_rmse_z == 0).all()  # truth feedback: nothing unseen
+
+
+def test_navigation_error_is_the_unseen_part_of_the_tracking_error():
+    """With the navigation filter in the loop the runner reports how far the position the PD
+    flies on is from the true one; a GPS bias walk, which nothing observes, makes it grow."""
+    cfg = EnvConfig(trajectories=replace(short_trajectories(), horizontal_duration_s=8.0))
+    sc = make_scenarios(2, traj_id=[0, 0], altitude_m=5.0, sensor_seed=torch.tensor([5, 6]))
+    res = fly(QuadWindEnv(cfg, batch_size=[2]), sc)
+    assert (res.nav_rmse_xy > 0).all() and (res.nav_rmse_z > 0).all()
+    gps = replace(cfg.sensors.gps_pos, bias_walk_std_per_sqrt_s=10 * cfg.sensors.gps_pos.bias_walk_std_per_sqrt_s)
+    drifting = fly(QuadWindEnv(replace(cfg, sensors=replace(cfg.sensors, gps_pos=gps)), batch_size=[2]), sc)
+    assert (drifting.nav_rmse_xy > 2 * res.nav_rmse_xy).all()
+    assert (drifting.rmse_xy > res.rmse_xy).all()  # the PD follows its biased estimate off the track
 
 
 def test_compiled_step_matches_eager():

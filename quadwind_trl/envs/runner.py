@@ -46,6 +46,10 @@ class FlightResults:
     rmse_z: Tensor  # [n] vertical position RMSE (m)
     crashed: Tensor  # [n] bool: the episode terminated early
     log: TensorDict  # [n, T] 10 Hz record of ``log_keys`` plus a bool "valid" entry
+    # [n] RMSE of the navigation solution the PD flies on against the true position, on the same
+    # steps: the part of the tracking error the vehicle cannot perceive (0 with true-state feedback)
+    nav_rmse_xy: Tensor | None = None
+    nav_rmse_z: Tensor | None = None
 
     @property
     def rmse(self) -> Tensor:
@@ -120,6 +124,8 @@ def fly(
         rmse_xy=torch.cat([p.rmse_xy for p in parts])[inverse],
         rmse_z=torch.cat([p.rmse_z for p in parts])[inverse],
         crashed=torch.cat([p.crashed for p in parts])[inverse],
+        nav_rmse_xy=torch.cat([p.nav_rmse_xy for p in parts])[inverse],
+        nav_rmse_z=torch.cat([p.nav_rmse_z for p in parts])[inverse],
         log=torch.cat(logs)[inverse.to(logs[0].device)],
     )
 
@@ -145,6 +151,8 @@ def _fly_chunk(
     active = torch.ones(n, dtype=torch.bool, device=dev)
     sq_xy = torch.zeros(n, device=dev)
     sq_z = torch.zeros(n, device=dev)
+    nav_sq_xy = torch.zeros(n, device=dev)
+    nav_sq_z = torch.zeros(n, device=dev)
     count = torch.zeros(n, device=dev)
     crashed = torch.zeros(n, dtype=torch.bool, device=dev)
     zero_action = torch.zeros(n, 4, device=dev)
@@ -161,6 +169,9 @@ def _fly_chunk(
             scored = active & (nxt.get("step").squeeze(-1) > pattern_start)
             sq_xy += torch.where(scored, err[..., :2].pow(2).sum(-1), 0.0)
             sq_z += torch.where(scored, err[..., 2].pow(2), 0.0)
+            nav_err = nxt.get("nav_pos") - nxt.get(("truth", "pos"))
+            nav_sq_xy += torch.where(scored, nav_err[..., :2].pow(2).sum(-1), 0.0)
+            nav_sq_z += torch.where(scored, nav_err[..., 2].pow(2), 0.0)
             count += scored
             crashed |= active & nxt.get("terminated").squeeze(-1)
             if (i * hold) % log_every == 0:
@@ -178,5 +189,7 @@ def _fly_chunk(
         rmse_xy=(sq_xy[:k] / denom).sqrt().cpu(),
         rmse_z=(sq_z[:k] / denom).sqrt().cpu(),
         crashed=crashed[:k].cpu(),
+        nav_rmse_xy=(nav_sq_xy[:k] / denom).sqrt().cpu(),
+        nav_rmse_z=(nav_sq_z[:k] / denom).sqrt().cpu(),
         log=log.cpu(),
     )

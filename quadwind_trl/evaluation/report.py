@@ -185,6 +185,36 @@ def training_section(manifests: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+SENSING_LABEL = {"navigation": "as shipped (nav filter)", "no_bias": "no sensor bias", "true_state": "PD on the true state"}
+
+
+def error_budget_section(budgets: dict[str, dict]) -> str:
+    """Tables of ``recipes/error_budget.py``: PD RMSE per (sensing, wind) cell with its navigation
+    error, and the wind-aware policy against PD in full wind under each sensing."""
+    lines = ["## Error budget: what part of PD's error a controller can remove", ""]
+    lines.append("Commands: " + "; ".join(f"`{b['command']}` (commit `{b.get('git_commit')}`)" for b in budgets.values())
+                 + ". The same episodes flown again with the sensing idealised and the wind removed")
+    lines.append("(`quadwind_trl/evaluation/error_budget.py`). *nav error* is the RMSE of the position the PD flies on")
+    lines.append("against the true one, on the scored steps: error the vehicle cannot see and no controller can remove.")
+    lines.append("*headroom* = 1 - nav error / PD RMSE: about the largest xy improvement any controller could reach.")
+    lines.append("")
+    for sweep, b in budgets.items():
+        lines.append(f"**{sweep}** ({b['episodes']} episodes; mean RMSE in m)")
+        lines.append("")
+        lines.append("| sensing | PD xy: full wind | mean wind only | still air | nav error xy (full) | PD z (full) | nav error z (full) |"
+                     " headroom xy | wind-aware vs PD, xy (full wind) | wins | wind-aware vs PD, z |")
+        lines.append("|" + "---|" * 11)
+        for mode, cells in b["pd"].items():
+            full, vs = cells["full"], b["aware_vs_pd"][mode]
+            xy, z = vs["rmse_xy"], vs["rmse_z"]
+            lines.append(f"| {SENSING_LABEL.get(mode, mode)} | {full['rmse_xy']:.3f} | {cells['mean_only']['rmse_xy']:.3f} | "
+                         f"{cells['still']['rmse_xy']:.3f} | {full['nav_rmse_xy']:.3f} | {full['rmse_z']:.3f} | {full['nav_rmse_z']:.3f} | "
+                         f"{100 * (1 - full['nav_rmse_xy'] / full['rmse_xy']):.0f} % | {xy['improvement']:.1f} % ({xy['ci_low']:.1f}-{xy['ci_high']:.1f}) | {xy['wins']}/{xy['n']} | "
+                         f"{z['improvement']:.1f} % |")
+        lines.append("")
+    return "\n".join(lines)
+
+
 def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None) -> str:
     """The whole results page: the preamble, then every section whose inputs exist."""
     parts = [preamble.rstrip(), ""]
@@ -197,6 +227,10 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
                  for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
     if ablations:
         parts.append(ablation_section(ablations))
+    budgets = {name: json.loads((results_dir / f"error_budget_{name}.json").read_text())
+               for name in ("horizontal", "vertical", "ood") if (results_dir / f"error_budget_{name}.json").exists()}
+    if budgets:
+        parts.append(error_budget_section(budgets))
     for section in sorted(sections_dir.glob("*.md")):
         parts.append(section.read_text().rstrip())
         parts.append("")

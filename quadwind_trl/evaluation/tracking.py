@@ -1,12 +1,14 @@
 """Fly evaluation sweeps and tabulate tracking RMSE by wind level and by trajectory."""
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
+from ..config import EnvConfig
 from ..envs.runner import fly
 from ..envs.trajectories import TRAJECTORIES
 from ..regimes import EvalSweep
@@ -47,6 +49,11 @@ def tracking_tables(episodes: TensorDictBase, metric: str = "rmse_xy") -> dict:
 QUICK_ALTITUDE_M = 20.0
 
 
+def quick_config(cfg: EnvConfig) -> EnvConfig:
+    """``cfg`` with the short flights of the smoke runs: 20 s patterns, vertical climbs to 40 m."""
+    return replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=20.0, vertical_top_m=40.0))
+
+
 def quick_subset(sweep: EvalSweep, scenarios: TensorDictBase) -> TensorDictBase:
     """A small, still factorial, smoke subset: one seed, the middle intensity, the weakest and
     strongest wind levels, every trajectory; fixed-altitude patterns flown at 20 m (short climb)."""
@@ -57,3 +64,12 @@ def quick_subset(sweep: EvalSweep, scenarios: TensorDictBase) -> TensorDictBase:
     out = scenarios[keep].clone()
     out["altitude_m"] = torch.where(out["altitude_m"] < sweep.ranges.top_altitude_m, QUICK_ALTITUDE_M, out["altitude_m"])
     return out
+
+
+def sweep_setup(sweep: EvalSweep, quick: bool = False) -> tuple[TensorDict, Callable[[EnvConfig], EnvConfig] | None]:
+    """The episodes of ``sweep`` and the env-config change to fly them with: the sweep as
+    designed (no change), or with ``quick`` its smoke subset on short flights."""
+    scenarios = sweep.scenarios()
+    if not quick:
+        return scenarios, None
+    return quick_subset(sweep, scenarios), quick_config

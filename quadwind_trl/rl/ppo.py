@@ -432,7 +432,7 @@ class PPOTrainer:
                     gae(batch)  # [N, T], time last, before flattening
                 flat = batch.reshape(-1)
                 n = flat.batch_size[0]
-                acc: dict[str, float] = {}
+                acc: dict[str, torch.Tensor] = {}  # summed on the device: one sync per iteration
                 nb = 0
                 for _ in range(cfg.epochs):
                     perm = torch.randperm(n, generator=gen)
@@ -446,13 +446,13 @@ class PPOTrainer:
                         for k in ("loss_objective", "loss_critic", "loss_entropy", "entropy", "clip_fraction",
                                   "kl_approx", "explained_variance"):
                             if k in out.keys():
-                                acc[k] = acc.get(k, 0.0) + float(out[k].detach().mean())
-                        acc["grad_norm"] = acc.get("grad_norm", 0.0) + float(gn)
+                                acc[k] = acc.get(k, 0.0) + out[k].detach().mean()
+                        acc["grad_norm"] = acc.get("grad_norm", 0.0) + gn.detach()
                         nb += 1
                 t_update = time.perf_counter() - t0
                 state["iteration"] += 1
                 state["frames"] += data.numel()
-                metrics = {k: v / nb for k, v in acc.items()}
+                metrics = {k: float(v) / nb for k, v in acc.items()}
                 metrics.update(stats)
                 metrics.update(
                     frames=state["frames"],

@@ -1,0 +1,96 @@
+"""Where the PD baseline's tracking error comes from, and how much of it a controller can remove.
+
+The tracking error is scored on the true position, but the autopilot flies its navigation
+estimate. A GPS or barometer bias (a random walk, ``SensorConfig``) shifts that estimate, and with
+this sensor suite nothing observes the shift: no controller, PD or learned, can take it out. The
+budget separates it from the part a controller can act on by flying the same episodes again with
+the sensing idealised and the wind removed:
+
+* sensing ``"navigation"``: the vehicle as shipped (nav filter over biased, noisy sensors);
+* ``"no_bias"``: every bias walk switched off, white noise kept;
+* ``"true_state"``: the PD reads the simulator state (the policy and estimator still read sensors);
+
+crossed with wind ``"full"`` (the sweep's), ``"mean_only"`` (intensity 0) and ``"still"`` (no
+wind). The wind-aware policy flies the full wind under each sensing, paired with PD there.
+"""
+from __future__ import annotations
+
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Callable, Literal
+
+from tensordict import TensorDictBase
+
+from ..config import EnvConfig, SensorChannelConfig
+from ..envs.runner import FlightResults
+from ..modules.wind_estimator import EstimatorBundle
+from .ablation import fly_controllers
+from .statistics import paired_summary
+
+Sensing = Literal["navigation", "no_bias", "true_state"]
+Wind = Literal["full", "mean_only", "still"]
+SENSING: tuple[Sensing, ...] = ("navigation", "no_bias", "true_state")
+WINDS: tuple[Wind, ...] = ("full", "mean_only", "still")
+
+
+def with_sensing(cfg: EnvConfig, sensing: Sensing) -> EnvConfig:
+    """``cfg`` with the sensing idealised as ``sensing`` names (module docstring)."""
+    if sensing == "navigation":
+        return cfg
+    if sensing == "no_bias":
+        unbiased = {
+            f.name: replace(getattr(cfg.sensors, f.name), bias_walk_std_per_sqrt_s=0.0)
+            for f in fields(cfg.sensors)
+            if isinstance(getattr(cfg.sensors, f.name), SensorChannelConfig)
+        }
+        return replace(cfg, sensors=replace(cfg.sensors, **unbiased))
+    if sensing == "true_state":
+        return replace(cfg, controller=replace(cfg.controller, feedback="truth"))
+    raise ValueError(f"sensing={sensing!r}; allowed: {SENSING}")
+
+
+def with_wind(scenarios: TensorDictBase, wind: Wind) -> TensorDictBase:
+    """A copy of ``scenarios`` with the turbulence (``"mean_only"``) or all wind (``"still"``) off;
+    every other field, seeds included, is kept, so the episodes stay paired."""
+    if wind not in WINDS:
+        raise ValueError(f"wind={wind!r}; allowed: {WINDS}")
+    out = scenarios.clone()
+    if wind in ("mean_only", "still"):
+        out["turb_intensity"].zero_()
+    if wind == "still":
+        out["wind_speed_ref_m_s"].zero_()
+    return out
+
+
+def _means(res: FlightResults) -> dict[str, float]:
+    fields_ = ("rmse_xy", "rmse_z", "nav_rmse_xy", "nav_rmse_z")
+    return {k: getattr(res, k).double().mean().item() for k in fields_} | {"crashed": int(res.crashed.sum())}
+
+
+def error_budget(
+    regime: str,
+    scenarios: TensorDictBase,
+    policy_path: str | Path,
+    estimator: EstimatorBundle,
+    sensing: tuple[Sensing, ...] = SENSING,
+    config_override: Callable[[EnvConfig], EnvConfig] | None = None,
+    progress: bool = False,
+) -> dict:
+    """PD mean RMSE for every (sensing, wind) cell, and the wind-aware policy against PD in full
+    wind under each sensing (paired: improvement with its bootstrap interval, wins)."""
+    base = config_override or (lambda cfg: cfg)
+    out: dict = {"episodes": scenarios.batch_size[0], "pd": {}, "aware_vs_pd": {}}
+    for mode in sensing:
+        override = lambda cfg, mode=mode: with_sensing(base(cfg), mode)  # noqa: E731
+        out["pd"][mode] = {}
+        for wind in WINDS:
+            controllers = ("pd", "aware") if wind == "full" else ("pd",)
+            res = fly_controllers(regime, with_wind(scenarios, wind), policy_path, estimator, controllers,
+                                  progress=progress, config_override=override)
+            out["pd"][mode][wind] = _means(res["pd"])
+            if wind == "full":
+                out["aware_vs_pd"][mode] = {
+                    metric: paired_summary(getattr(res["pd"], metric), getattr(res["aware"], metric))
+                    for metric in ("rmse_xy", "rmse_z")
+                }
+    return out
