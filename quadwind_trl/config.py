@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import typing
-from dataclasses import dataclass, field, fields, is_dataclass
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 from typing import Literal
 
 GRAVITY_M_S2 = 9.81
@@ -292,6 +292,30 @@ class EnvConfig:
             raise ValueError(f"ResidualConfig.hold_control_steps={hold} must divide "
                              f"TimingConfig.log_every_control_steps={log_every}")
         return self
+
+
+Sensing = Literal["navigation", "no_bias", "true_state"]
+SENSING: tuple[Sensing, ...] = ("navigation", "no_bias", "true_state")
+
+
+def with_sensing(cfg: EnvConfig, sensing: Sensing) -> EnvConfig:
+    """``cfg`` with the PD's sensing idealised: ``"navigation"`` leaves it as it is (the nav
+    filter over noisy, biased sensors); ``"no_bias"`` switches every sensor's bias walk off and
+    keeps the white noise; ``"true_state"`` makes the PD read the simulator state (the sensors,
+    and so the estimator and the policy's sensor channels, are unchanged). The error budget
+    (``evaluation/error_budget.py``) and the PPO recipes' ``--sensing`` use it."""
+    if sensing == "navigation":
+        return cfg
+    if sensing == "no_bias":
+        unbiased = {
+            f.name: replace(getattr(cfg.sensors, f.name), bias_walk_std_per_sqrt_s=0.0)
+            for f in fields(cfg.sensors)
+            if isinstance(getattr(cfg.sensors, f.name), SensorChannelConfig)
+        }
+        return replace(cfg, sensors=replace(cfg.sensors, **unbiased))
+    if sensing == "true_state":
+        return replace(cfg, controller=replace(cfg.controller, feedback="truth"))
+    raise ValueError(f"sensing={sensing!r}; allowed: {SENSING}")
 
 
 def config_to_dict(cfg) -> dict:

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.evaluation.error_budget import SENSING, error_budget
+from quadwind_trl.config import SENSING
+from quadwind_trl.evaluation.error_budget import error_budget
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import git_commit, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR

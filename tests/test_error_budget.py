@@ -4,8 +4,8 @@ from dataclasses import fields
 import pytest
 import torch
 
-from quadwind_trl.config import EnvConfig, SensorChannelConfig
-from quadwind_trl.evaluation.error_budget import with_sensing, with_wind
+from quadwind_trl.config import EnvConfig, SensorChannelConfig, with_sensing
+from quadwind_trl.evaluation.error_budget import with_wind
 from quadwind_trl.regimes import VERTICAL_SWEEP
 
 

@@ -112,11 +112,12 @@ def test_trainer_checkpoints_resumes_and_exports(tmp_path):
     assert ck["progress"]["frames"] == 512
 
 
-def _run_recipe(script: str, tmp_path: Path) -> dict:
+def _run_recipe(script: str, tmp_path: Path, *extra: str) -> dict:
     out = tmp_path / script
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "recipes" / script), "--quick", "--untrained-estimator", "--out", str(out), "--no-progress"],
+        [sys.executable, str(ROOT / "recipes" / script), "--quick", "--untrained-estimator", "--out", str(out), "--no-progress",
+         *extra],
         capture_output=True, text=True, timeout=600, cwd=ROOT, env=env,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
@@ -128,11 +129,13 @@ def test_quick_horizontal_recipe(tmp_path):
     m = _run_recipe("ppo_horizontal.py", tmp_path)
     assert m["frames"] == 1024 and m["env_spec"]["regime"] == "horizontal" and m["metrics"]["episodes"] == 1
     assert m["env_spec"]["env_config"]["reward"]["w_z"] == 1.0
+    assert m["env_spec"]["env_config"]["controller"]["feedback"] == "estimate"  # the shipped vehicle by default
 
 
 def test_quick_vertical_curriculum_recipe(tmp_path):
-    m = _run_recipe("ppo_vertical_curriculum.py", tmp_path)
+    m = _run_recipe("ppo_vertical_curriculum.py", tmp_path, "--sensing", "true_state")
     assert m["env_spec"]["env_config"]["reward"]["w_z"] == 0.5
+    assert m["env_spec"]["env_config"]["controller"]["feedback"] == "truth"  # --sensing reaches the saved env
     assert m["curriculum"]["stages"][-1] == ["vertical_climb", "spiral_ascent", "figure8_3d", "lawnmower_scan"]
 
 

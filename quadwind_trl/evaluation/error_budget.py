@@ -15,38 +15,19 @@ wind). The wind-aware policy flies the full wind under each sensing, paired with
 """
 from __future__ import annotations
 
-from dataclasses import fields, replace
 from pathlib import Path
 from typing import Callable, Literal
 
 from tensordict import TensorDictBase
 
-from ..config import EnvConfig, SensorChannelConfig
+from ..config import SENSING, EnvConfig, Sensing, with_sensing
 from ..envs.runner import FlightResults
 from ..modules.wind_estimator import EstimatorBundle
 from .ablation import fly_controllers
 from .statistics import paired_summary
 
-Sensing = Literal["navigation", "no_bias", "true_state"]
 Wind = Literal["full", "mean_only", "still"]
-SENSING: tuple[Sensing, ...] = ("navigation", "no_bias", "true_state")
 WINDS: tuple[Wind, ...] = ("full", "mean_only", "still")
-
-
-def with_sensing(cfg: EnvConfig, sensing: Sensing) -> EnvConfig:
-    """``cfg`` with the sensing idealised as ``sensing`` names (module docstring)."""
-    if sensing == "navigation":
-        return cfg
-    if sensing == "no_bias":
-        unbiased = {
-            f.name: replace(getattr(cfg.sensors, f.name), bias_walk_std_per_sqrt_s=0.0)
-            for f in fields(cfg.sensors)
-            if isinstance(getattr(cfg.sensors, f.name), SensorChannelConfig)
-        }
-        return replace(cfg, sensors=replace(cfg.sensors, **unbiased))
-    if sensing == "true_state":
-        return replace(cfg, controller=replace(cfg.controller, feedback="truth"))
-    raise ValueError(f"sensing={sensing!r}; allowed: {SENSING}")
 
 
 def with_wind(scenarios: TensorDictBase, wind: Wind) -> TensorDictBase:

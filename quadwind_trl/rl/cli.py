@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from ..config import TrajectoryConfig
+from ..config import SENSING, TrajectoryConfig, with_sensing
 from .envs import DEFAULT_RANGES, RLEnvSpec, default_estimator_path, load_estimator, regime_config
 from .ppo import PPOConfig, PPOTrainer, default_eval_scenarios, vertical_curriculum
 
@@ -45,6 +45,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
                    help=f"frames between evaluations against PD, 0: only at the end (default {DEFAULT_EVAL_EVERY[regime]:,})")
     p.add_argument("--eval-episodes", type=int, default=None,
                    help=f"episodes of the periodic evaluation, 0: none (default {DEFAULT_EVAL_EPISODES[regime]})")
+    p.add_argument("--sensing", default="navigation", choices=list(SENSING),
+                   help="what the PD flies on (config.with_sensing): the nav filter as shipped (default), the same "
+                        "sensors without bias walks, or the true state; an experiment, not the paper's vehicle")
     p.add_argument("--logger", default="csv", choices=["csv", "tensorboard"])
     p.add_argument("--no-progress", action="store_true")
     return p
@@ -75,7 +78,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     torch.set_num_threads(args.threads)
     spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                      estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                     config=regime_config(regime))
+                     config=with_sensing(regime_config(regime), args.sensing))
     if args.quick:
         spec, cfg, changes = quick_setup(regime, spec)
         print("--quick changes from the full run:")
