@@ -47,7 +47,8 @@ class FlightResults:
     crashed: Tensor  # [n] bool: the episode terminated early
     log: TensorDict  # [n, T] 10 Hz record of ``log_keys`` plus a bool "valid" entry
     # [n] RMSE of the navigation solution the PD flies on against the true position, on the same
-    # steps: the part of the tracking error the vehicle cannot perceive (0 with true-state feedback)
+    # steps: the part of the tracking error the vehicle cannot perceive (0 with true-state feedback).
+    # None only where results are rebuilt from stored RMSEs (the trainer's cached PD evaluation).
     nav_rmse_xy: Tensor | None = None
     nav_rmse_z: Tensor | None = None
 

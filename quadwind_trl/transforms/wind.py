@@ -156,10 +156,9 @@ class WindEstimate(Transform):
         return observation_spec
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        # Deliberately unsupported, not unfinished: ``forward`` is TorchRL's entry point for
-        # transforming stored data (replay buffers, offline batches), where consecutive rows are not
-        # one flight's consecutive steps. A per-flight history built from them would be silently
-        # wrong; offline features come from ``FeatureExtractor.scan`` instead (the same code).
+        # Deliberately unsupported: the estimate needs each flight's feature window and EMA state,
+        # which stored rows (``forward``'s input) do not carry. Offline estimates of whole flights
+        # come from ``evaluation.estimation.predict_flights`` and ``modules.ema.ema_scan``.
         raise NotImplementedError("WindEstimate is stateful: use it inside a TransformedEnv")
 
 
