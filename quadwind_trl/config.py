@@ -89,13 +89,16 @@ class ControllerConfig:
 class NavigationConfig:
     """Complementary-filter gains (fraction of the innovation applied per new sample); ours.
 
-    0.1 per 10 Hz GPS sample is a 1 s position time constant, 0.2 a 0.5 s velocity one; 0.04
-    per 25 Hz barometer sample a 1 s altitude one. Between samples the accelerometer predicts.
+    Between samples the accelerometer predicts. 0.02 per 10 Hz GPS sample is a 5 s position
+    time constant, 0.2 a 0.5 s velocity one; 0.02 per 25 Hz barometer sample a 2 s altitude one.
+    They minimise the white-noise part of the navigation error for the paper's noise figures
+    (a Monte Carlo of the filter's error dynamics, docs/simulator.md); the ``legacy_walk``
+    sensing preset keeps the earlier 0.1 / 0.2 / 0.04 (1 s / 0.5 s / 1 s).
     """
 
-    gps_position_gain: float = 0.1
+    gps_position_gain: float = 0.02
     gps_velocity_gain: float = 0.2
-    baro_gain: float = 0.04
+    baro_gain: float = 0.02
 
     def validate(self) -> None:
         for name in ("gps_position_gain", "gps_velocity_gain", "baro_gain"):
@@ -201,28 +204,109 @@ class TurbulenceConfig:
 
 @dataclass(frozen=True)
 class SensorChannelConfig:
-    """One instrument: sample rate, white noise and a random-walk bias (per axis)."""
+    """One instrument, per axis: sample rate, white noise, and a first-order Gauss-Markov bias.
+
+    The bias obeys ``db = -b / tau dt + q dW`` with ``tau = bias_corr_time_s`` and
+    ``q = bias_drive_std_per_sqrt_s``: stationary standard deviation ``q sqrt(tau / 2)``
+    (:attr:`bias_std`), drawn at the episode start. ``tau = inf`` is the unbounded limit, a random
+    walk that starts at zero (the ``legacy_walk`` preset). Build bounded channels with
+    :meth:`gauss_markov`, which takes the datasheet-style (std, correlation time) pair.
+    """
 
     rate_hz: float
     noise_std: float
-    bias_walk_std_per_sqrt_s: float
+    bias_drive_std_per_sqrt_s: float = 0.0
+    bias_corr_time_s: float = math.inf
+
+    @classmethod
+    def gauss_markov(cls, rate_hz: float, noise_std: float, bias_std: float, corr_time_s: float) -> "SensorChannelConfig":
+        return cls(rate_hz, noise_std, bias_std * math.sqrt(2.0 / corr_time_s), corr_time_s)
+
+    @property
+    def bias_std(self) -> float:
+        """Stationary standard deviation of the bias (0 for a walk: it starts at zero)."""
+        if math.isinf(self.bias_corr_time_s):
+            return 0.0
+        return self.bias_drive_std_per_sqrt_s * math.sqrt(self.bias_corr_time_s / 2.0)
+
+    def validate(self, name: str) -> None:
+        _check_range(f"SensorConfig.{name}", "rate_hz", self.rate_hz, 0.01, 10_000.0)
+        _check_range(f"SensorConfig.{name}", "noise_std", self.noise_std, 0.0, 1e6)
+        _check_range(f"SensorConfig.{name}", "bias_drive_std_per_sqrt_s", self.bias_drive_std_per_sqrt_s, 0.0, 1e6)
+        _check_range(f"SensorConfig.{name}", "bias_corr_time_s", self.bias_corr_time_s, 1e-3, math.inf)
+
+
+_gm = SensorChannelConfig.gauss_markov
+_DEG = math.radians
+# u-blox ZED-F9P datasheet (UBX-17051259): horizontal accuracy RTK 0.01 m + 1 ppm CEP, SBAS
+# 1.0 m CEP, standalone (PVT) 1.5 m CEP; velocity 0.05 m/s. CEP = 1.1774 sigma for a circular
+# normal error, so sigma per axis = CEP / 1.1774. Correlation times after Groves (2013, Sec.
+# 9.4 and 7.4): residual ionosphere/ephemeris errors (standalone, SBAS) vary over tens of
+# minutes; what remains under RTK is multipath, correlated over about a minute.
+_GNSS = {
+    "rtk": (_gm(10.0, 0.7, 0.011 / 1.1774, 60.0), _gm(10.0, 0.15, 0.005, 60.0)),
+    "sbas": (_gm(10.0, 0.7, 1.0 / 1.1774, 600.0), _gm(10.0, 0.15, 0.02, 600.0)),
+    "standalone": (_gm(10.0, 0.7, 1.5 / 1.1774, 600.0), _gm(10.0, 0.15, 0.02, 600.0)),
+}
 
 
 @dataclass(frozen=True)
 class SensorConfig:
     """The small-UAS sensor suite (paper, Section "Sensors"); noise in SI units (m, m/s, rad...).
 
-    Bias walks are our choice (the paper says only "slowly drifting"); see docs/simulator.md.
+    White noise and rates are the paper's. The biases are ours (the paper says only "slowly
+    drifting"): bounded Gauss-Markov processes from datasheets, the receiver class chosen by
+    the sensing preset (``SENSOR_PRESETS``; default ``rtk``). docs/simulator.md lists sources.
     """
 
     enabled: bool = True
-    gps_pos: SensorChannelConfig = SensorChannelConfig(10.0, 0.7, 0.03)  # m
-    gps_vel: SensorChannelConfig = SensorChannelConfig(10.0, 0.15, 0.005)  # m/s
-    baro_alt: SensorChannelConfig = SensorChannelConfig(25.0, 0.8, 0.02)  # m
-    attitude_rp: SensorChannelConfig = SensorChannelConfig(50.0, math.radians(0.6), math.radians(0.01))  # rad
-    attitude_yaw: SensorChannelConfig = SensorChannelConfig(50.0, math.radians(1.5), math.radians(0.02))  # rad
-    gyro: SensorChannelConfig = SensorChannelConfig(200.0, math.radians(0.3), math.radians(0.005))  # rad/s
-    accel: SensorChannelConfig = SensorChannelConfig(200.0, 0.05, 0.001)  # m/s^2
+    gps_pos: SensorChannelConfig = _GNSS["rtk"][0]  # m
+    gps_vel: SensorChannelConfig = _GNSS["rtk"][1]  # m/s
+    # BMP388: relative accuracy +-0.08 hPa (+-0.66 m) over its range, offset temperature
+    # coefficient +-0.75 Pa/K (6 cm/K); a few kelvin over a flight and the synoptic pressure
+    # tendency (~1 hPa / 3 h) give a slowly varying 0.15 m
+    baro_alt: SensorChannelConfig = _gm(25.0, 0.8, 0.15, 300.0)  # m
+    # an AHRS levels with the accelerometer: its 0.005 m/s^2 bias tilts it by ~0.03 deg; 0.1
+    # deg allows for misalignment. Yaw from a magnetometer: 0.5 deg of slowly varying disturbance
+    attitude_rp: SensorChannelConfig = _gm(50.0, _DEG(0.6), _DEG(0.1), 300.0)  # rad
+    attitude_yaw: SensorChannelConfig = _gm(50.0, _DEG(1.5), _DEG(0.5), 300.0)  # rad
+    # ICM-42688-P / BMI088 class: gyro bias instability ~3 deg/h, in-run drift with temperature
+    # ~0.005 deg/s/K; accelerometer offset drift ~0.15 mg/K: a few kelvin in flight
+    gyro: SensorChannelConfig = _gm(200.0, _DEG(0.3), _DEG(0.02), 300.0)  # rad/s
+    accel: SensorChannelConfig = _gm(200.0, 0.05, 0.005, 300.0)  # m/s^2
+
+    def channels(self) -> dict[str, SensorChannelConfig]:
+        return {f.name: getattr(self, f.name) for f in fields(self) if isinstance(getattr(self, f.name), SensorChannelConfig)}
+
+    def validate(self) -> None:
+        for name, ch in self.channels().items():
+            ch.validate(name)
+        if self.gyro.rate_hz != self.accel.rate_hz:
+            raise ValueError(f"SensorConfig: gyro.rate_hz={self.gyro.rate_hz} and accel.rate_hz={self.accel.rate_hz} "
+                             "must be equal (one IMU)")
+
+
+_walk = SensorChannelConfig
+# The calibration before bounded biases (kept so the shipped estimators and policies, and the
+# results they made, stay reproducible): unbounded walks from zero, and the gyro and
+# accelerometer sampled at the 100 Hz control instants (labelled 200 Hz then, sampled at 100).
+LEGACY_SENSORS = SensorConfig(
+    gps_pos=_walk(10.0, 0.7, 0.03),
+    gps_vel=_walk(10.0, 0.15, 0.005),
+    baro_alt=_walk(25.0, 0.8, 0.02),
+    attitude_rp=_walk(50.0, _DEG(0.6), _DEG(0.01)),
+    attitude_yaw=_walk(50.0, _DEG(1.5), _DEG(0.02)),
+    gyro=_walk(100.0, _DEG(0.3), _DEG(0.005)),
+    accel=_walk(100.0, 0.05, 0.001),
+)
+LEGACY_NAVIGATION = NavigationConfig(gps_position_gain=0.1, gps_velocity_gain=0.2, baro_gain=0.04)
+
+SensorPreset = Literal["rtk", "sbas", "standalone", "legacy_walk"]
+# name -> (sensors, navigation filter). The receiver classes differ only in the GNSS biases.
+SENSOR_PRESETS: dict[str, tuple[SensorConfig, NavigationConfig]] = {
+    **{name: (replace(SensorConfig(), gps_pos=pos, gps_vel=vel), NavigationConfig()) for name, (pos, vel) in _GNSS.items()},
+    "legacy_walk": (LEGACY_SENSORS, LEGACY_NAVIGATION),
+}
 
 
 @dataclass(frozen=True)
@@ -298,20 +382,25 @@ Sensing = Literal["navigation", "no_bias", "true_state"]
 SENSING: tuple[Sensing, ...] = ("navigation", "no_bias", "true_state")
 
 
+def with_sensor_preset(cfg: EnvConfig, preset: SensorPreset) -> EnvConfig:
+    """``cfg`` with the sensors and navigation filter of a named preset (``SENSOR_PRESETS``)."""
+    if preset not in SENSOR_PRESETS:
+        raise ValueError(f"sensor preset {preset!r}; allowed: {tuple(SENSOR_PRESETS)}")
+    sensors, navigation = SENSOR_PRESETS[preset]
+    return replace(cfg, sensors=replace(sensors, enabled=cfg.sensors.enabled), navigation=navigation)
+
+
 def with_sensing(cfg: EnvConfig, sensing: Sensing) -> EnvConfig:
     """``cfg`` with the PD's sensing idealised: ``"navigation"`` leaves it as it is (the nav
-    filter over noisy, biased sensors); ``"no_bias"`` switches every sensor's bias walk off and
-    keeps the white noise; ``"true_state"`` makes the PD read the simulator state (the sensors,
-    and so the estimator and the policy's sensor channels, are unchanged). The error budget
-    (``evaluation/error_budget.py``) and the PPO recipes' ``--sensing`` use it."""
+    filter over noisy, biased sensors); ``"no_bias"`` switches every sensor's bias off (zero
+    drive, so also a zero start) and keeps the white noise; ``"true_state"`` makes the PD read
+    the simulator state (the sensors, and so the estimator and the policy's sensor channels,
+    are unchanged). The error budget (``evaluation/error_budget.py``) and the PPO recipes'
+    ``--sensing`` use it."""
     if sensing == "navigation":
         return cfg
     if sensing == "no_bias":
-        unbiased = {
-            f.name: replace(getattr(cfg.sensors, f.name), bias_walk_std_per_sqrt_s=0.0)
-            for f in fields(cfg.sensors)
-            if isinstance(getattr(cfg.sensors, f.name), SensorChannelConfig)
-        }
+        unbiased = {name: replace(ch, bias_drive_std_per_sqrt_s=0.0) for name, ch in cfg.sensors.channels().items()}
         return replace(cfg, sensors=replace(cfg.sensors, **unbiased))
     if sensing == "true_state":
         return replace(cfg, controller=replace(cfg.controller, feedback="truth"))
@@ -330,6 +419,8 @@ def config_to_dict(cfg) -> dict:
 def config_from_dict(cls, data: dict):
     """Rebuild a (nested) config dataclass from :func:`config_to_dict` output (JSON lists become
     tuples again; unknown keys fail loudly)."""
+    if cls is SensorConfig and _is_walk_schema(data):
+        return _legacy_sensors(data)
     hints = typing.get_type_hints(cls)
     unknown = set(data) - {f.name for f in fields(cls)}
     if unknown:
@@ -349,3 +440,18 @@ def config_from_dict(cls, data: dict):
 
 def _as_tuple(value):
     return tuple(_as_tuple(v) for v in value) if isinstance(value, list) else value
+
+
+def _is_walk_schema(data: dict) -> bool:
+    return any(isinstance(v, dict) and "bias_walk_std_per_sqrt_s" in v for v in data.values())
+
+
+def _legacy_sensors(data: dict) -> SensorConfig:
+    """Configs saved before the Gauss-Markov biases (the shipped checkpoints) are the
+    ``legacy_walk`` preset; refuse any that differs from it in noise or walk."""
+    legacy = LEGACY_SENSORS.channels()
+    for name, ch in legacy.items():
+        saved = data[name]
+        if (saved["noise_std"], saved["bias_walk_std_per_sqrt_s"]) != (ch.noise_std, ch.bias_drive_std_per_sqrt_s):
+            raise ValueError(f"saved SensorConfig.{name}={saved} is not the legacy_walk calibration; cannot map it")
+    return replace(LEGACY_SENSORS, enabled=data.get("enabled", True))

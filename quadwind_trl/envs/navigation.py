@@ -1,10 +1,11 @@
 """A simple navigation filter: what a small autopilot feeds its position controller.
 
-Position and velocity are predicted at the control rate from the accelerometer (rotated to the
-world with the measured attitude, gravity removed) and pulled towards GPS position and velocity
+Position and velocity are predicted at the control rate from the accelerometer (the mean of its
+samples over the step, rotated to the world with the measured attitude, gravity removed) and pulled towards GPS position and velocity
 (10 Hz) and barometric altitude (25 Hz) whenever those sensors deliver a new sample
 (complementary filter with fixed gains). The white GPS noise is filtered; its random-walk bias is
 not observable without another absolute reference and passes through, as on a real vehicle.
+The gains (``NavigationConfig``) are constant: a steady-state filter, tuned for the paper's noise.
 Attitude and body rates are taken from the attitude sensor and the gyro as they are.
 """
 from __future__ import annotations
@@ -35,12 +36,19 @@ def init_navigation(meas: Tensor) -> dict[str, Tensor]:
 
 
 def update_navigation(
-    nav: dict[str, Tensor], meas: Tensor, gps_tick: Tensor, baro_tick: Tensor, p: NavigationParams, dt: float
+    nav: dict[str, Tensor],
+    meas: Tensor,
+    accel_mean: Tensor,
+    gps_tick: Tensor,
+    baro_tick: Tensor,
+    p: NavigationParams,
+    dt: float,
 ) -> dict[str, Tensor]:
-    """One control step: predict with the accelerometer over ``dt``, then correct with the
-    sensors that ticked (bool ``[N, 1]`` masks)."""
+    """One control step: predict over ``dt`` with ``accel_mean`` ``[N, 3]`` (the body-frame
+    accelerometer samples of the step, averaged), then correct with the sensors that ticked
+    (bool ``[N, 1]`` masks)."""
     rot = rotmat_from_euler(meas[..., 7:10])
-    acc = rotate(rot, meas[..., 13:16]) - meas.new_tensor([0.0, 0.0, GRAVITY_M_S2])
+    acc = rotate(rot, accel_mean) - meas.new_tensor([0.0, 0.0, GRAVITY_M_S2])
     vel = nav["vel"] + dt * acc
     pos = nav["pos"] + dt * vel
     pos_xy = torch.where(gps_tick, pos[..., :2] + p.pos_gain * (meas[..., 0:2] - pos[..., :2]), pos[..., :2])

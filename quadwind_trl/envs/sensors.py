@@ -1,4 +1,4 @@
-"""The onboard sensor suite: per-instrument rate, white noise and random-walk bias.
+"""The onboard sensor suite: per-instrument rate, white noise and a Gauss-Markov bias.
 
 Sixteen measured channels, packed in this order (``SENSOR_CHANNELS``):
 
@@ -13,12 +13,20 @@ channels   rate  quantity                              frame
 13-15      200   accelerometer: specific force (m/s2)  body FLU
 =========  ====  ====================================  =========
 
-Everything is evaluated at control instants (100 Hz). A sensor of rate ``f <= 100 Hz`` samples
-at the control steps ``k`` with ``k % (100 / f) == 0`` and its value is held in between (zero-order
-hold); the 200 Hz instruments sample at every control step (the samples in between would be
-overwritten before anything reads them, so only their bias walk matters and it is accumulated
-over the whole interval). Noise and bias increments come from the counter-based hash of
-``(sensor_seed, step, channel)``, so an episode's sensor stream is a function of its seed only.
+An instrument slower than the 100 Hz control rate samples at the control steps ``k`` with
+``k % (100 / f) == 0`` and its value is held in between (zero-order hold). The IMU (gyro and
+accelerometer) may run faster, ``m = f / 100`` samples per control step: the simulator hands
+:meth:`SensorSuite.measure` the body rate and specific force at the physics substeps nearest
+before each intermediate sample instant (at 200 Hz and 500 Hz physics: the 5 ms sample sees the
+4 ms state, 1 ms stale, as an IMU read on the last completed integration step would). Every
+sample gets its own noise and bias step; the held measurement is the latest sample, and the
+navigation filter integrates the mean of the interval's samples (``imu_mean``).
+
+Each bias is a first-order Gauss-Markov process, discretised exactly over its sample interval
+``h``: ``b <- exp(-h / tau) b + sigma sqrt(1 - exp(-2 h / tau)) w``, started from its
+stationary distribution ``N(0, sigma^2)`` (``tau = inf``: a random walk started at zero, the
+``legacy_walk`` preset). Noise, bias steps and the initial biases come from the counter-based hash
+of ``(sensor_seed, step, channel)``, so an episode's sensor stream is a function of its seed only.
 """
 from __future__ import annotations
 
@@ -40,7 +48,18 @@ SENSOR_CHANNELS = (
 )  # fmt: skip
 NUM_SENSOR_CHANNELS = len(SENSOR_CHANNELS)
 _YAW = 9
+_IMU = slice(10, 16)
+_NUM_IMU = 6
 _STREAM_SENSORS = 201
+_STREAM_IMU_SUBSAMPLES = 202
+_STREAM_INITIAL_BIAS = 203
+
+
+def _gauss_markov_step(ch: SensorChannelConfig, h_s: float) -> tuple[float, float]:
+    """``(decay, step_std)`` of the exact discretisation over an interval ``h_s``."""
+    if math.isinf(ch.bias_corr_time_s):  # the walk: (1, q sqrt(h))
+        return 1.0, ch.bias_drive_std_per_sqrt_s * math.sqrt(h_s)
+    return math.exp(-h_s / ch.bias_corr_time_s), ch.bias_std * math.sqrt(-math.expm1(-2.0 * h_s / ch.bias_corr_time_s))
 
 
 class SensorSuite:
@@ -56,14 +75,29 @@ class SensorSuite:
             ratio = control_hz / ch.rate_hz
             if ratio >= 1 and abs(ratio - round(ratio)) > 1e-6:
                 raise ValueError(f"SensorConfig: {name} at {ch.rate_hz} Hz does not divide the {control_hz:.0f} Hz control rate")
+            if ratio < 1 and not name.startswith(("gyro", "accel")):
+                raise ValueError(f"SensorConfig: {name} at {ch.rate_hz} Hz is faster than the {control_hz:.0f} Hz control "
+                                 "rate; only the IMU (gyro, accel) may be")
             periods.append(max(1, round(ratio)))
+        imu_ratio = cfg.gyro.rate_hz / control_hz
+        if imu_ratio > 1 and abs(imu_ratio - round(imu_ratio)) > 1e-6:
+            raise ValueError(f"SensorConfig: gyro/accel at {cfg.gyro.rate_hz} Hz must be a whole multiple of the "
+                             f"{control_hz:.0f} Hz control rate")
+        self.imu_samples_per_step = max(1, round(imu_ratio))
         self.period = torch.tensor(periods, dtype=torch.int64, device=device)
         self.noise_std = torch.tensor([ch.noise_std for ch in per_channel], dtype=torch.float32, device=device)
-        self.bias_step_std = torch.tensor(
-            [ch.bias_walk_std_per_sqrt_s * math.sqrt(p * control_dt_s) for ch, p in zip(per_channel, periods)],
-            dtype=torch.float32,
-            device=device,
-        )
+        steps = [_gauss_markov_step(ch, p * control_dt_s / (self.imu_samples_per_step if 10 <= i < 16 else 1))
+                 for i, (ch, p) in enumerate(zip(per_channel, periods))]
+        self.bias_decay = torch.tensor([a for a, _ in steps], dtype=torch.float32, device=device)
+        self.bias_step_std = torch.tensor([c for _, c in steps], dtype=torch.float32, device=device)
+        self.bias_std = torch.tensor([ch.bias_std for ch in per_channel], dtype=torch.float32, device=device)
+
+    def imu_substeps(self, physics_substeps: int) -> tuple[int, ...]:
+        """After which physics substeps of a control step (1-based counts) the simulator must
+        capture the IMU's truth for the intermediate samples: the last completed one before each
+        sample instant ``j / m`` of the step, ``j = 1 .. m - 1``."""
+        m = self.imu_samples_per_step
+        return tuple(j * physics_substeps // m for j in range(1, m))
 
     def ticks(self, step: Tensor, channel: int) -> Tensor:
         """bool ``[N, 1]``: whether ``channel``'s instrument delivers a new sample at ``step``."""
@@ -72,21 +106,41 @@ class SensorSuite:
     def init_state(self, sensor_seed: Tensor) -> dict[str, Tensor]:
         n = sensor_seed.shape[0]
         zeros = torch.zeros(n, NUM_SENSOR_CHANNELS, device=sensor_seed.device)
-        return {"seed": sensor_seed, "bias": zeros, "held": zeros.clone()}
+        bias = self.bias_std * hash_normal(sensor_seed, 0, _STREAM_INITIAL_BIAS, NUM_SENSOR_CHANNELS)
+        return {"seed": sensor_seed, "bias": bias, "held": zeros, "imu_mean": zeros[..., _IMU].clone()}
 
     def measure(
-        self, state: dict[str, Tensor], truth: Tensor, step: Tensor, force: Tensor | None = None
+        self,
+        state: dict[str, Tensor],
+        truth: Tensor,
+        step: Tensor,
+        force: Tensor | None = None,
+        imu_truth_sub: Tensor | None = None,
     ) -> tuple[Tensor, dict[str, Tensor]]:
         """Measurements ``[N, 16]`` at control step ``step`` ``[N]`` from the true values ``truth``
         ``[N, 16]`` (same channel order). ``force`` (bool ``[N, 1]``) samples every channel, for
-        the first measurement of an episode."""
+        the first measurement of an episode. ``imu_truth_sub`` ``[N, m - 1, 6]``: the true body
+        rate and specific force at the IMU's intermediate samples since the last control step
+        (only with ``m > 1``; none at an episode's first measurement)."""
         if not self.cfg.enabled:
-            return truth, state
+            return truth, dict(state, imu_mean=truth[..., _IMU])
         tick = (step.unsqueeze(-1) % self.period) == 0
         if force is not None:
             tick = tick | force
+        bias = state["bias"]
+        imu_sum = None
+        if imu_truth_sub is not None:
+            # the IMU's intermediate samples, in time order, each with its own noise and bias step
+            sub = imu_truth_sub.shape[-2]
+            draws = hash_normal(state["seed"], step, _STREAM_IMU_SUBSAMPLES, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
+            imu_bias, imu_sum = bias[..., _IMU], 0.0
+            for j in range(sub):
+                imu_bias = self.bias_decay[_IMU] * imu_bias + self.bias_step_std[_IMU] * draws[..., j, _NUM_IMU:]
+                imu_sum = imu_sum + imu_truth_sub[..., j, :] + imu_bias + self.noise_std[_IMU] * draws[..., j, :_NUM_IMU]
+            bias = torch.cat((bias[..., :10], imu_bias), -1)
         draws = hash_normal(state["seed"], step, _STREAM_SENSORS, 2 * NUM_SENSOR_CHANNELS)
-        bias = torch.where(tick, state["bias"] + self.bias_step_std * draws[..., NUM_SENSOR_CHANNELS:], state["bias"])
+        stepped = self.bias_decay * bias + self.bias_step_std * draws[..., NUM_SENSOR_CHANNELS:]
+        bias = torch.where(tick, stepped, bias)
         sample = truth + bias + self.noise_std * draws[..., :NUM_SENSOR_CHANNELS]
         # wrap yaw to [-pi, pi) with a remainder, not atan2(sin, cos): torch's CPU atan2 rounds
         # differently in a kernel's vectorised body and its scalar tail, which made a row's
@@ -94,4 +148,5 @@ class SensorSuite:
         yaw = torch.remainder(sample[..., _YAW : _YAW + 1] + math.pi, 2.0 * math.pi) - math.pi
         sample = torch.cat((sample[..., :_YAW], yaw, sample[..., _YAW + 1 :]), -1)
         held = torch.where(tick, sample, state["held"])
-        return held, dict(state, bias=bias, held=held)
+        imu_mean = held[..., _IMU] if imu_sum is None else (imu_sum + held[..., _IMU]) / self.imu_samples_per_step
+        return held, dict(state, bias=bias, held=held, imu_mean=imu_mean)

@@ -62,6 +62,7 @@ class QuadSimulator:
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
         self.sensors = SensorSuite(c.sensors, c.timing.control_dt_s, dev)
+        self.imu_substeps = self.sensors.imu_substeps(c.timing.control_substeps)
         self.navigation = NavigationParams.from_config(c.navigation)
         self.action_scale = torch.tensor(c.residual.action_scale, device=dev)
         self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
@@ -133,13 +134,16 @@ class QuadSimulator:
         rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
 
         body = RigidBody(*(state[k] for k in RigidBody._fields))
-        for _ in range(self.cfg.timing.control_substeps):
+        imu_sub = []  # body rate and specific force at the IMU's intermediate sample instants
+        for i in range(1, self.cfg.timing.control_substeps + 1):
             body, specific_force = physics_step(
                 body, rotor_cmd, state["wind_total"], self.vehicle, self.cfg.timing.physics_dt_s
             )
+            if i in self.imu_substeps:
+                imu_sub.append(torch.cat((body.omega, specific_force), -1))
         new = dict(state, specific_force=specific_force, **body._asdict())
         new.update(step=state["step"] + 1, ff=ff, cmd=cmd)
-        new = self._observe_instant(new, first=False)
+        new = self._observe_instant(new, first=False, imu_truth_sub=torch.stack(imu_sub, -2) if imu_sub else None)
 
         rw = self.cfg.reward
         err = new["pos"] - new["ref_pos"]
@@ -161,8 +165,11 @@ class QuadSimulator:
 
     # --- what the vehicle and the world look like at one instant --------------------------------
 
-    def _observe_instant(self, state: dict[str, Tensor], first: bool) -> dict[str, Tensor]:
-        """Wind, reference, sensors and the PD wrench at the state's current step."""
+    def _observe_instant(
+        self, state: dict[str, Tensor], first: bool, imu_truth_sub: Tensor | None = None
+    ) -> dict[str, Tensor]:
+        """Wind, reference, sensors and the PD wrench at the state's current step
+        (``imu_truth_sub``: the IMU's true inputs at its samples inside the step just flown)."""
         wind_state = {k[5:]: v for k, v in state.items() if k.startswith("wind.")}
         mean, total, wind_state = self.atmosphere.sample(wind_state, state["pos"], self.control_dt)
         ref = self.trajectories.reference(
@@ -175,7 +182,8 @@ class QuadSimulator:
         )
         sensor_state = {k[7:]: v for k, v in state.items() if k.startswith("sensor.")}
         force = torch.ones_like(state["step"], dtype=torch.bool).unsqueeze(-1) if first else None
-        meas, sensor_state = self.sensors.measure(sensor_state, truth, state["step"], force=force)
+        meas, sensor_state = self.sensors.measure(sensor_state, truth, state["step"], force=force,
+                                                 imu_truth_sub=imu_truth_sub)
 
         out = dict(state)
         feedback = self.cfg.controller.feedback
@@ -191,6 +199,7 @@ class QuadSimulator:
                 estimate = update_navigation(
                     {"pos": state["nav.pos"], "vel": state["nav.vel"]},
                     meas,
+                    sensor_state["imu_mean"][..., 3:],
                     self.sensors.ticks(state["step"], 0),
                     self.sensors.ticks(state["step"], 6),
                     self.navigation,
