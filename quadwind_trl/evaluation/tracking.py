@@ -22,13 +22,16 @@ def fly_sweep(
     progress: bool = False,
 ) -> TensorDict:
     """Per-episode results of ``scenarios`` (their order): ``rmse_xy``, ``rmse_z``, ``rmse``
-    (combined), ``crashed``, alongside the scenario fields that label them."""
+    (combined), ``crashed``, and the navigation error ``nav_rmse_xy``, ``nav_rmse_z`` (what the
+    vehicle cannot see), alongside the scenario fields that label them."""
     res = fly(env, scenarios, policy=policy, progress=progress)
     out = scenarios.select("traj_id", "wind_speed_ref_m_s", "turb_intensity", "case_id", strict=False).clone()
     out["rmse_xy"] = res.rmse_xy
     out["rmse_z"] = res.rmse_z
     out["rmse"] = res.rmse
     out["crashed"] = res.crashed
+    out["nav_rmse_xy"] = res.nav_rmse_xy
+    out["nav_rmse_z"] = res.nav_rmse_z
     return out
 
 
