@@ -3,11 +3,15 @@ sensor bias no controller can remove, how much is white sensor noise, how much i
 the wind-aware policy removes under each sensing (``quadwind_trl/evaluation/error_budget.py``).
 
     python recipes/error_budget.py --sweep vertical            # 144 episodes x 9 PD + 3 policy flights
-    python recipes/error_budget.py --sweep horizontal
+    python recipes/error_budget.py --sweep horizontal --sensors sbas --pd-only --winds full
     python recipes/error_budget.py --sweep vertical --quick    # smoke: small subset, short flights
 
-Uses the shipped policy and estimator of the sweep's regime unless ``--policy``/``--estimator``
-are given. Writes ``results/error_budget_<sweep>.json`` (``--quick``: under ``runs/quick/``).
+The vehicle is the current default with the sensing preset ``--sensors`` (default ``rtk``);
+``--sensors policy`` flies the policy's own saved vehicle instead (the shipped policies: the
+``legacy_walk`` calibration, ``results/legacy/``). ``--pd-only`` skips the policy flights. Uses the
+shipped policy and estimator of the sweep's regime unless ``--policy``/``--estimator`` are given.
+Writes ``results/error_budget_<sweep>[_<preset>].json`` (``--quick``: under ``runs/quick/``);
+the stationary navigation error of the regime is the ``navigation``/``full`` cell's nav error.
 """
 from __future__ import annotations
 
@@ -18,8 +22,8 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.config import SENSING
-from quadwind_trl.evaluation.error_budget import error_budget
+from quadwind_trl.config import SENSING, SENSOR_PRESETS, EnvConfig, with_sensor_preset
+from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import git_commit, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
@@ -33,6 +37,10 @@ def main() -> None:
     parser.add_argument("--policy", type=Path, default=None, help="policy checkpoint (default: shipped)")
     parser.add_argument("--estimator", type=Path, default=None, help="estimator checkpoint (default: shipped)")
     parser.add_argument("--sensing", nargs="+", default=list(SENSING), choices=list(SENSING))
+    parser.add_argument("--sensors", default="rtk", choices=[*SENSOR_PRESETS, "policy"],
+                        help="sensing preset of the vehicle flown (policy: the policy's own saved vehicle)")
+    parser.add_argument("--winds", nargs="+", default=list(WINDS), choices=list(WINDS))
+    parser.add_argument("--pd-only", action="store_true", help="skip the wind-aware policy's flights")
     parser.add_argument("--quick", action="store_true", help="one seed and intensity, 20 s patterns")
     parser.add_argument("--results", type=Path, default=None, help="default results/ (--quick: runs/quick/results)")
     parser.add_argument("--threads", type=int, default=1)
@@ -41,19 +49,30 @@ def main() -> None:
     regime = SWEEP_REGIME[args.sweep]
     policy = args.policy or CHECKPOINT_DIR / f"policy_{regime}.pt"
     estimator = load_estimator(regime, args.estimator)
-    scenarios, override = sweep_setup(SWEEPS[args.sweep], args.quick)
+    scenarios, quick = sweep_setup(SWEEPS[args.sweep], args.quick)
+    quick = quick or (lambda cfg: cfg)
+    vehicle = None if args.sensors == "policy" else on_vehicle(with_sensor_preset(EnvConfig(), args.sensors))
+    override = quick if vehicle is None else (lambda cfg: quick(vehicle(cfg)))
     start = time.perf_counter()
-    budget = error_budget(regime, scenarios, policy, estimator, tuple(args.sensing), override, progress=True)
-    budget.update(sweep=args.sweep, command=" ".join(sys.argv), git_commit=git_commit(), policy=str(policy),
-                  wall_time_s=time.perf_counter() - start)
-    out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}.json"
+    budget = error_budget(regime, scenarios, policy, estimator, tuple(args.sensing), override, progress=True,
+                          winds=tuple(args.winds), with_policy=not args.pd_only)
+    budget.update(sweep=args.sweep, sensors=args.sensors, command=" ".join(sys.argv), git_commit=git_commit(),
+                  policy=str(policy), wall_time_s=time.perf_counter() - start)
+    suffix = "" if args.sensors == "rtk" else f"_{args.sensors}"
+    out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}{suffix}.json"
     write_json(out, budget)
     for mode, cells in budget["pd"].items():
-        aware = budget["aware_vs_pd"][mode]["rmse_xy"]
-        print(f"{mode:>10}: PD xy full {cells['full']['rmse_xy']:.3f}, mean-only {cells['mean_only']['rmse_xy']:.3f}, "
-              f"still {cells['still']['rmse_xy']:.3f} m, nav error {cells['full']['nav_rmse_xy']:.3f} m; "
-              f"z full {cells['full']['rmse_z']:.3f} m; wind-aware vs PD xy "
-              f"{aware['improvement']:.1f} % (wins {aware['wins']}/{aware['n']})")
+        line = "; ".join(f"{wind}: PD xy {c['rmse_xy']:.3f} z {c['rmse_z']:.3f} m, nav error xy {c['nav_rmse_xy']:.3f} "
+                         f"z {c['nav_rmse_z']:.3f} m" for wind, c in cells.items())
+        if mode in budget["aware_vs_pd"]:
+            aware = budget["aware_vs_pd"][mode]["rmse_xy"]
+            line += f"; wind-aware vs PD xy {aware['improvement']:.1f} % (wins {aware['wins']}/{aware['n']})"
+        print(f"{mode:>10}: {line}")
+    if "navigation" in budget["pd"] and "full" in budget["pd"]["navigation"]:
+        nav = budget["pd"]["navigation"]["full"]
+        print(f"stationary navigation error ({args.sweep}, {args.sensors}): xy {nav['nav_rmse_xy']:.3f} m, "
+              f"z {nav['nav_rmse_z']:.3f} m; headroom xy {100 * (1 - nav['nav_rmse_xy'] / nav['rmse_xy']):.0f} %, "
+              f"z {100 * (1 - nav['nav_rmse_z'] / nav['rmse_z']):.0f} %")
     print(f"wrote {out} ({budget['wall_time_s']:.0f} s)")
 
 

@@ -2,9 +2,11 @@
 
     python recipes/pd_baseline.py                          # horizontal 225, vertical 144, OOD 90
     python recipes/pd_baseline.py --quick                  # a small smoke subset, short flights
+    python recipes/pd_baseline.py --sensors legacy_walk --out results/legacy/pd_baseline.json
 
-Writes ``results/pd_baseline.json`` (per-group statistics, with the command and config); the
-report (``recipes/report.py``) puts them beside the paper's PD columns in docs/results.md.
+Writes ``results/pd_baseline.json`` (per-group statistics of the tracking RMSE and of the
+navigation error, with the command and config); the report (``recipes/report.py``) puts them
+beside the paper's PD columns in docs/results.md, with the headroom 1 - nav error / RMSE.
 """
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.config import EnvConfig, config_to_dict
+from quadwind_trl.config import SENSOR_PRESETS, EnvConfig, config_to_dict, with_sensor_preset
 from quadwind_trl.envs import QuadWindEnv
 from quadwind_trl.evaluation.tracking import fly_sweep, quick_config, quick_subset, tracking_tables
 from quadwind_trl.manifest import git_commit, write_json
@@ -25,6 +27,7 @@ from quadwind_trl.regimes import SWEEPS
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweeps", nargs="+", default=list(SWEEPS), choices=list(SWEEPS))
+    parser.add_argument("--sensors", default="rtk", choices=list(SENSOR_PRESETS), help="sensing preset")
     parser.add_argument("--quick", action="store_true", help="one seed, one intensity, 20 s patterns")
     parser.add_argument("--out", type=Path, default=Path("results/pd_baseline.json"))
     parser.add_argument("--threads", type=int, default=1)
@@ -32,11 +35,12 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
-    cfg = EnvConfig()
+    cfg = with_sensor_preset(EnvConfig(), args.sensors)
     if args.quick:
         cfg = quick_config(cfg)
         print("--quick: horizontal patterns 20 s, vertical climbs to 40 m, one seed and intensity per sweep")
-    report = {"command": " ".join(sys.argv), "git_commit": git_commit(), "config": config_to_dict(cfg), "sweeps": {}}
+    report = {"command": " ".join(sys.argv), "git_commit": git_commit(), "sensors": args.sensors,
+              "config": config_to_dict(cfg), "sweeps": {}}
     for name in args.sweeps:
         sweep = SWEEPS[name]
         scenarios = sweep.scenarios()
@@ -46,11 +50,12 @@ def main() -> None:
         start = time.perf_counter()
         episodes = fly_sweep(env, scenarios, progress=True)
         wall = time.perf_counter() - start
-        tables = {m: tracking_tables(episodes, m) for m in ("rmse_xy", "rmse_z", "rmse")}
+        tables = {m: tracking_tables(episodes, m) for m in ("rmse_xy", "rmse_z", "rmse", "nav_rmse_xy", "nav_rmse_z")}
         report["sweeps"][name] = {"episodes": scenarios.batch_size[0], "wall_time_s": wall, "tables": tables}
         by_wind = tables["rmse_xy"]["by_wind"]
-        print(f"{name}: {scenarios.batch_size[0]} episodes in {wall:.0f} s; PD xy RMSE by wind: "
-              + ", ".join(f"U={k}: {v['mean']:.3f}" for k, v in by_wind.items()))
+        nav = tables["nav_rmse_xy"]["by_wind"]
+        print(f"{name}: {scenarios.batch_size[0]} episodes in {wall:.0f} s; PD xy RMSE (nav error) by wind: "
+              + ", ".join(f"U={k}: {v['mean']:.3f} ({nav[k]['mean']:.3f})" for k, v in by_wind.items()))
     write_json(args.out, report)
     print(f"wrote {args.out}")
 

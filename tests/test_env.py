@@ -12,8 +12,10 @@ from torch import nn
 from torchrl.envs.utils import check_env_specs
 
 from quadwind_trl.config import (
-    GRAVITY_M_S2, ControllerConfig, EnvConfig, ResidualConfig, RewardConfig, TrajectoryConfig, VehicleConfig,
+    GRAVITY_M_S2, LEGACY_NAVIGATION, LEGACY_SENSORS, SENSOR_PRESETS, ControllerConfig, EnvConfig, ResidualConfig,
+    RewardConfig, SensorChannelConfig, TrajectoryConfig, VehicleConfig, config_from_dict, with_sensor_preset,
 )
+from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 from quadwind_trl.envs import TRAJECTORIES, QuadWindEnv, make_scenarios
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
@@ -286,15 +288,53 @@ def test_pd_tracks_every_trajectory_in_still_air():
 
 def test_navigation_error_is_the_unseen_part_of_the_tracking_error():
     """With the navigation filter in the loop the runner reports how far the position the PD
-    flies on is from the true one; a GPS bias walk, which nothing observes, makes it grow."""
+    flies on is from the true one; a metre-level GPS bias, which nothing observes, makes it grow."""
     cfg = EnvConfig(trajectories=replace(short_trajectories(), horizontal_duration_s=8.0))
     sc = make_scenarios(2, traj_id=[0, 0], altitude_m=5.0, sensor_seed=torch.tensor([5, 6]))
     res = fly(QuadWindEnv(cfg, batch_size=[2]), sc)
     assert (res.nav_rmse_xy > 0).all() and (res.nav_rmse_z > 0).all()
-    gps = replace(cfg.sensors.gps_pos, bias_walk_std_per_sqrt_s=10 * cfg.sensors.gps_pos.bias_walk_std_per_sqrt_s)
+    gps = SensorChannelConfig.gauss_markov(10.0, cfg.sensors.gps_pos.noise_std, 1.0, 600.0)
     drifting = fly(QuadWindEnv(replace(cfg, sensors=replace(cfg.sensors, gps_pos=gps)), batch_size=[2]), sc)
     assert (drifting.nav_rmse_xy > 2 * res.nav_rmse_xy).all()
     assert (drifting.rmse_xy > res.rmse_xy).all()  # the PD follows its biased estimate off the track
+
+
+def test_legacy_walk_preset_reproduces_the_pre_gauss_markov_flight_bit_for_bit():
+    """Two horizontal PD episodes (the quick subset's rows 0 and 9: loiter and lawnmower, 8 s of
+    pattern from an airborne start), RMSEs recorded from the code before bounded biases and the
+    200 Hz IMU (commit e9697ba): the legacy preset flies them to the last bit."""
+    from quadwind_trl.evaluation.tracking import fly_sweep, quick_subset
+    from quadwind_trl.regimes import HORIZONTAL_SWEEP
+
+    cfg = with_sensor_preset(EnvConfig(), "legacy_walk")
+    cfg = replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=8.0))
+    sc = quick_subset(HORIZONTAL_SWEEP, HORIZONTAL_SWEEP.scenarios())[[0, 9]]
+    sc["start_step"][:] = -1
+    ep = fly_sweep(QuadWindEnv(cfg, batch_size=[2]), sc)
+    assert ep["rmse_xy"].double().tolist() == [float.fromhex("0x1.86aafc0000000p-2"), float.fromhex("0x1.4b45ac0000000p-2")]
+    assert ep["rmse_z"].double().tolist() == [float.fromhex("0x1.a8d5ce0000000p-4"), float.fromhex("0x1.a602740000000p-3")]
+
+
+@pytest.mark.parametrize("regime", ["horizontal", "vertical"])
+def test_shipped_policies_load_their_config_as_the_legacy_preset(regime):
+    import json
+
+    saved = json.loads((CHECKPOINT_DIR / f"policy_{regime}.json").read_text())["env_spec"]["env_config"]
+    cfg = config_from_dict(EnvConfig, saved)
+    assert cfg.sensors == LEGACY_SENSORS and cfg.navigation == LEGACY_NAVIGATION
+    assert with_sensor_preset(EnvConfig(), "legacy_walk") == replace(EnvConfig(), sensors=LEGACY_SENSORS,
+                                                                       navigation=LEGACY_NAVIGATION)
+    tampered = dict(saved, sensors=dict(saved["sensors"], gps_pos=dict(saved["sensors"]["gps_pos"], noise_std=0.1)))
+    with pytest.raises(ValueError, match="gps_pos"):
+        config_from_dict(EnvConfig, tampered)
+
+
+def test_every_sensor_preset_builds_and_flies():
+    sc = make_scenarios(2, traj_id="hover", altitude_m=50.0, start_step=-1)
+    for name in SENSOR_PRESETS:
+        sim = QuadSimulator(with_sensor_preset(EnvConfig(), name))
+        state = _run(sim, sim.reset(None, sc), 0.5)
+        assert torch.isfinite(state["pos"]).all() and (state["pos"][:, 2] - 50.0).abs().max() < 1.0, name
 
 
 def test_compiled_step_matches_eager():

@@ -19,13 +19,13 @@ def test_navigation_is_the_shipped_vehicle():
     assert with_sensing(cfg, "navigation") == cfg
 
 
-def test_no_bias_zeroes_every_bias_walk_and_keeps_the_noise():
+def test_no_bias_zeroes_every_bias_and_keeps_the_noise():
     cfg = EnvConfig()
     out = with_sensing(cfg, "no_bias")
     before, after = _channels(cfg), _channels(out)
     assert set(before) == set(after) and len(after) == 7
     for name, ch in after.items():
-        assert ch.bias_walk_std_per_sqrt_s == 0.0
+        assert ch.bias_drive_std_per_sqrt_s == 0.0 and ch.bias_std == 0.0
         assert ch.noise_std == before[name].noise_std and ch.rate_hz == before[name].rate_hz
     assert out.controller == cfg.controller and out.sensors.enabled
 

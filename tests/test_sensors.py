@@ -1,5 +1,5 @@
-"""Sensor suite statistics (noise, sample-and-hold, bias random walk, replay) and the
-counter-based random numbers they are drawn from."""
+"""Sensor suite statistics (noise, sample-and-hold, Gauss-Markov and legacy random-walk biases,
+the 200 Hz IMU, replay) and the counter-based random numbers they are drawn from."""
 from __future__ import annotations
 
 import math
@@ -8,7 +8,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from quadwind_trl.config import SensorChannelConfig, SensorConfig, TimingConfig
+from quadwind_trl.config import LEGACY_SENSORS, SENSOR_PRESETS, SensorChannelConfig, SensorConfig, TimingConfig
 from quadwind_trl.envs.counter_rng import hash_bits, hash_normal, hash_uniform
 from quadwind_trl.envs.sensors import NUM_SENSOR_CHANNELS, SENSOR_CHANNELS, SensorSuite
 
@@ -18,9 +18,10 @@ PER_CHANNEL = [CFG.gps_pos] * 3 + [CFG.gps_vel] * 3 + [CFG.baro_alt] + [CFG.atti
     CFG.gyro
 ] * 3 + [CFG.accel] * 3
 NOISE = torch.tensor([c.noise_std for c in PER_CHANNEL], dtype=torch.float64)
-WALK = torch.tensor([c.bias_walk_std_per_sqrt_s for c in PER_CHANNEL], dtype=torch.float64)
-# control steps between samples at 100 Hz: GPS 10 Hz, baro 25 Hz, attitude 50 Hz, gyro/accel 200 Hz
+# control steps between samples at 100 Hz: GPS 10 Hz, baro 25 Hz, attitude 50 Hz; gyro/accel at
+# 200 Hz take two samples per control step (one per step where the suite is driven alone)
 PERIOD = torch.tensor([10] * 6 + [4] + [2] * 3 + [1] * 6)
+IMU_SAMPLES = torch.tensor([1] * 10 + [2] * 6)
 YAW = SENSOR_CHANNELS.index("yaw")
 GROUPS = {"gps_pos": [0, 1, 2], "gps_vel": [3, 4, 5], "baro": [6], "roll_pitch": [7, 8], "yaw": [9], "gyro": [10, 11, 12],
           "accel": [13, 14, 15]}  # fmt: skip
@@ -46,13 +47,31 @@ def test_paper_noise_levels_and_rates():
     assert (CFG.gyro.rate_hz, CFG.accel.rate_hz) == (200.0, 200.0)
     assert math.isclose(CFG.gyro.noise_std, math.radians(0.3)) and CFG.accel.noise_std == 0.05
     suite = SensorSuite(CFG, DT)
-    assert torch.equal(suite.period.cpu(), PERIOD)
-    torch.testing.assert_close(suite.bias_step_std.double(), WALK * (PERIOD * DT).double().sqrt(), rtol=1e-6, atol=0)
+    assert torch.equal(suite.period.cpu(), PERIOD) and suite.imu_samples_per_step == 2
+    # exact discretisation over each instrument's own sample interval
+    h = (PERIOD * DT / IMU_SAMPLES).double()
+    tau = torch.tensor([c.bias_corr_time_s for c in PER_CHANNEL], dtype=torch.float64)
+    sigma = torch.tensor([c.bias_std for c in PER_CHANNEL], dtype=torch.float64)
+    torch.testing.assert_close(suite.bias_decay.double(), torch.exp(-h / tau), rtol=1e-6, atol=0)
+    torch.testing.assert_close(suite.bias_step_std.double(), sigma * (1 - torch.exp(-2 * h / tau)).sqrt(), rtol=1e-5, atol=0)
+
+
+def test_every_preset_is_bounded_except_the_legacy_walk():
+    for name, (sensors, _) in SENSOR_PRESETS.items():
+        sensors.validate()
+        bounded = [math.isfinite(ch.bias_corr_time_s) for ch in sensors.channels().values()]
+        assert all(bounded) if name != "legacy_walk" else not any(bounded), name
+    # the receiver classes order as their datasheets: RTK centimetres, SBAS and standalone metres
+    std = {name: SENSOR_PRESETS[name][0].gps_pos.bias_std for name in ("rtk", "sbas", "standalone")}
+    assert std["rtk"] < 0.02 < 0.5 < std["sbas"] < std["standalone"]
+    assert LEGACY_SENSORS.gyro.rate_hz == 100.0  # what it always sampled at
 
 
 def test_rates_that_do_not_divide_the_control_rate_are_refused():
     with pytest.raises(ValueError, match="gps_x"):
         SensorSuite(replace(CFG, gps_pos=SensorChannelConfig(30.0, 0.7, 0.05)), DT)
+    with pytest.raises(ValueError, match="baro_alt"):
+        SensorSuite(replace(CFG, baro_alt=SensorChannelConfig(200.0, 0.8)), DT)
 
 
 def test_disabled_sensors_return_the_truth():
@@ -84,11 +103,8 @@ def test_white_noise_std_per_channel_with_bias_disabled():
     assert ((std / NOISE - 1).abs() < 0.05).all(), dict(zip(SENSOR_CHANNELS, (std / NOISE).tolist()))
 
 
-@pytest.fixture(scope="module")
-def long_run():
-    """2048 seeds, 800 control steps (8 s) of the default suite, random truth every step."""
-    suite = SensorSuite(CFG, DT)
-    n, steps = 2048, 800
+def _long_run(cfg: SensorConfig, n: int, steps: int = 800):
+    suite = SensorSuite(cfg, DT)
     st = suite.init_state(torch.arange(n) * 3 + 5)
     gen = torch.Generator().manual_seed(1)
     noise, increments, bias_at = [], [], {}
@@ -106,6 +122,18 @@ def long_run():
             bias_at[k] = st["bias"].double()
     # noise and bias increments [n, 200, 16], nan between an instrument's samples
     return torch.stack(noise, 1).double(), bias_at, torch.stack(increments, 1).double()
+
+
+@pytest.fixture(scope="module")
+def long_run():
+    """2048 seeds, 800 control steps (8 s) of the default suite, random truth every step."""
+    return _long_run(CFG, 2048)
+
+
+@pytest.fixture(scope="module")
+def long_walk():
+    """The same with the legacy random-walk biases."""
+    return _long_run(LEGACY_SENSORS, 1024)
 
 
 def test_noise_std_per_channel_with_the_bias_removed(long_run):
@@ -130,18 +158,82 @@ def test_noise_is_white_and_uncorrelated_across_channels_and_with_the_bias(long_
         assert abs(torch.corrcoef(pair)[0, 1]) < 0.03, SENSOR_CHANNELS[c]
 
 
-def test_bias_random_walk_variance_grows_linearly_in_time(long_run):
+def test_legacy_bias_random_walk_variance_grows_linearly_in_time(long_walk):
     """Ticks at steps 0, p, 2p ...: after steps 0..k, k + 1 divisible by every period, the bias
     variance is walk^2 (k + 1) dt exactly: 2 s and 8 s here, a ratio of 4."""
-    _, bias, _ = long_run
+    _, bias, _ = long_walk
     t1, t2 = 200 * DT, 800 * DT
     for name, chans in GROUPS.items():
         v1 = bias[199][:, chans].pow(2).mean()  # zero-mean walk: about zero
         v2 = bias[799][:, chans].pow(2).mean()
-        walk2 = WALK[chans[0]] ** 2
+        walk2 = LEGACY_SENSORS.channels()[_CHANNEL_OF[name]].bias_drive_std_per_sqrt_s ** 2
         assert abs(v2 / v1 / (t2 / t1) - 1) < 0.10, (name, (v2 / v1).item())
         assert abs(v1 / (walk2 * t1) - 1) < 0.10, (name, (v1 / (walk2 * t1)).item())
         assert abs(v2 / (walk2 * t2) - 1) < 0.10, (name, (v2 / (walk2 * t2)).item())
+
+
+_CHANNEL_OF = {"gps_pos": "gps_pos", "gps_vel": "gps_vel", "baro": "baro_alt", "roll_pitch": "attitude_rp",
+               "yaw": "attitude_yaw", "gyro": "gyro", "accel": "accel"}
+
+
+def test_gauss_markov_bias_has_its_stationary_std_and_correlation_time():
+    """Every channel a Gauss-Markov bias with tau = 1.5 s: from the stationary start, the std
+    stays sigma at every time and the lag-1 s autocorrelation is exp(-1 / tau) (tau within 10 %)."""
+    tau = 1.5
+    cfg = SensorConfig(**{name: SensorChannelConfig.gauss_markov(ch.rate_hz, ch.noise_std, 2.0 * ch.noise_std + 0.01, tau)
+                          for name, ch in CFG.channels().items()})  # fmt: skip
+    suite = SensorSuite(cfg, DT)
+    sigma = suite.bias_std.double()
+    n, lag, steps = 4096, 100, 600
+    st = suite.init_state(torch.arange(n) * 11 + 1)
+    truth, imu_sub = torch.zeros(n, NUM_SENSOR_CHANNELS), torch.zeros(n, 1, 6)  # the IMU's 5 ms sample too
+    biases = []
+    for k in range(steps):
+        first = torch.ones(n, 1, dtype=torch.bool) if k == 0 else None
+        _, st = suite.measure(st, truth, torch.full((n,), k), force=first, imu_truth_sub=None if k == 0 else imu_sub)
+        biases.append(st["bias"].double())
+    b = torch.stack(biases, 1) / sigma  # [n, steps, 16], unit variance if stationary
+    for t in (0, steps // 2, steps - 1):
+        std = b[:, t].pow(2).mean(0).sqrt()
+        assert ((std - 1).abs() < 0.10).all(), (t, std)
+    rho = (b[:, lag:] * b[:, :-lag]).mean((0, 1)) / b.pow(2).mean((0, 1))
+    tau_hat = -(lag * DT) / rho.log()
+    assert ((tau_hat / tau - 1).abs() < 0.10).all(), dict(zip(SENSOR_CHANNELS, tau_hat.tolist()))
+
+
+def test_the_default_biases_start_from_their_stationary_distribution():
+    suite = SensorSuite(CFG, DT)
+    bias = suite.init_state(torch.arange(20_000) + 77)["bias"].double()
+    ratio = bias.pow(2).mean(0).sqrt() / suite.bias_std.double()
+    assert ((ratio - 1).abs() < 0.05).all(), ratio
+    assert (bias.mean(0).abs() < 0.05 * suite.bias_std.double()).all()
+
+
+def test_the_imu_delivers_a_new_sample_every_5_ms():
+    """Two gyro/accel samples per 10 ms control step: the intermediate one (from the physics state
+    the simulator hands in) and the control-instant one, each with its own noise."""
+    cfg = SensorConfig(**{name: SensorChannelConfig(ch.rate_hz, ch.noise_std) for name, ch in CFG.channels().items()})
+    suite = SensorSuite(cfg, DT)
+    assert suite.imu_substeps(TimingConfig().control_substeps) == (2,)  # the 4 ms state for the 5 ms sample
+    assert SensorSuite(LEGACY_SENSORS, DT).imu_substeps(5) == ()
+    n = 4096
+    st = suite.init_state(torch.arange(n))
+    gen = torch.Generator().manual_seed(4)
+    mid_err, end_err = [], []
+    for k in range(40):
+        truth, mid_truth = random_truth(n, gen), random_truth(n, gen)[:, 10:16]
+        sub = None if k == 0 else mid_truth.unsqueeze(-2)
+        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None,
+                                 imu_truth_sub=sub)
+        if k:
+            mid = 2 * st["imu_mean"] - meas[:, 10:16]  # the 5 ms sample
+            mid_err.append(mid - mid_truth)
+            end_err.append(meas[:, 10:16] - truth[:, 10:16])
+    mid_err, end_err = torch.cat(mid_err).double(), torch.cat(end_err).double()
+    noise = NOISE[10:16]
+    assert ((mid_err.std(0) / noise - 1).abs() < 0.05).all() and ((end_err.std(0) / noise - 1).abs() < 0.05).all()
+    corr = torch.corrcoef(torch.cat((mid_err, end_err), 1).T)[:6, 6:].diagonal()
+    assert (corr.abs() < 0.03).all(), corr  # independent draws: two samples, not one held twice
 
 
 def test_values_change_only_at_each_sensors_rate_and_hold_in_between():

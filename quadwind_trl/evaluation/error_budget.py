@@ -1,20 +1,24 @@
 """Where the PD baseline's tracking error comes from, and how much of it a controller can remove.
 
 The tracking error is scored on the true position, but the autopilot flies its navigation
-estimate. A GPS or barometer bias (a random walk, ``SensorConfig``) shifts that estimate, and with
-this sensor suite nothing observes the shift: no controller, PD or learned, can take it out. The
+estimate. A GPS or barometer bias (``SensorConfig``: bounded Gauss-Markov, or the legacy walks)
+shifts that estimate, and with this sensor suite nothing observes the shift: no controller, PD or
+learned, can take it out. The
 budget separates it from the part a controller can act on by flying the same episodes again with
 the sensing idealised and the wind removed:
 
 * sensing ``"navigation"``: the vehicle as shipped (nav filter over biased, noisy sensors);
-* ``"no_bias"``: every bias walk switched off, white noise kept;
+* ``"no_bias"``: every bias switched off, white noise kept;
 * ``"true_state"``: the PD reads the simulator state (the policy and estimator still read sensors);
 
 crossed with wind ``"full"`` (the sweep's), ``"mean_only"`` (intensity 0) and ``"still"`` (no
-wind). The wind-aware policy flies the full wind under each sensing, paired with PD there.
+wind). The wind-aware policy, if asked for, flies the full wind under each sensing, paired with PD
+there. The vehicle is the policy's own (its checkpoint's config) unless ``vehicle`` is given
+(:func:`on_vehicle`): then the budget is that vehicle's, with the policy's decision interval.
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Literal
 
@@ -43,6 +47,12 @@ def with_wind(scenarios: TensorDictBase, wind: Wind) -> TensorDictBase:
     return out
 
 
+def on_vehicle(vehicle: EnvConfig) -> Callable[[EnvConfig], EnvConfig]:
+    """A config override that flies ``vehicle``'s physics, sensors and trajectories while keeping
+    the policy's residual (decision interval, scales) and reward from its own config."""
+    return lambda policy_cfg: replace(vehicle, residual=policy_cfg.residual, reward=policy_cfg.reward)
+
+
 def _means(res: FlightResults) -> dict[str, float]:
     fields_ = ("rmse_xy", "rmse_z", "nav_rmse_xy", "nav_rmse_z")
     return {k: getattr(res, k).double().mean().item() for k in fields_} | {"crashed": int(res.crashed.sum())}
@@ -56,20 +66,23 @@ def error_budget(
     sensing: tuple[Sensing, ...] = SENSING,
     config_override: Callable[[EnvConfig], EnvConfig] | None = None,
     progress: bool = False,
+    winds: tuple[Wind, ...] = WINDS,
+    with_policy: bool = True,
 ) -> dict:
-    """PD mean RMSE for every (sensing, wind) cell, and the wind-aware policy against PD in full
-    wind under each sensing (paired: improvement with its bootstrap interval, wins)."""
+    """PD mean RMSE and navigation error for every (sensing, wind) cell, and (``with_policy``)
+    the wind-aware policy against PD in full wind under each sensing (paired: improvement with
+    its bootstrap interval, wins)."""
     base = config_override or (lambda cfg: cfg)
     out: dict = {"episodes": scenarios.batch_size[0], "pd": {}, "aware_vs_pd": {}}
     for mode in sensing:
         override = lambda cfg, mode=mode: with_sensing(base(cfg), mode)  # noqa: E731
         out["pd"][mode] = {}
-        for wind in WINDS:
-            controllers = ("pd", "aware") if wind == "full" else ("pd",)
+        for wind in winds:
+            controllers = ("pd", "aware") if wind == "full" and with_policy else ("pd",)
             res = fly_controllers(regime, with_wind(scenarios, wind), policy_path, estimator, controllers,
                                   progress=progress, config_override=override)
             out["pd"][mode][wind] = _means(res["pd"])
-            if wind == "full":
+            if "aware" in controllers:
                 out["aware_vs_pd"][mode] = {
                     metric: paired_summary(getattr(res["pd"], metric), getattr(res["aware"], metric))
                     for metric in ("rmse_xy", "rmse_z")

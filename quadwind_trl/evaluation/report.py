@@ -23,36 +23,56 @@ def pd_calibration_section(result: dict) -> str:
     lines.append(f"Command: `{result['command']}` (commit `{result.get('git_commit')}`).")
     lines.append("RMSE against the true position, scored over each flight's pattern (after the climb for")
     lines.append("horizontal flights; the whole flight after arming for vertical ones). Ratio = ours / paper.")
-    lines.append("How the cruise speed, the PD's navigation feedback, the GPS bias walk and the wind cap were")
+    lines.append("How the cruise speed, the PD's navigation feedback, the sensor biases and the wind cap were")
     lines.append("set from these sweeps, and what each did, is in [simulator.md](simulator.md#calibrating-the-pd-baseline-against-the-paper).")
+    lines.append(f"Sensing preset: `{result.get('sensors', 'legacy_walk')}`. *nav* = mean navigation error (the position the PD")
+    lines.append("flies on against the true one), *headroom* = 1 - nav / ours: the largest improvement any controller could make.")
     lines.append("")
     sweeps = result["sweeps"]
+
+    def headroom(tables: dict, group: str, key: str, axis: str = "xy") -> str:
+        nav = tables.get(f"nav_rmse_{axis}")
+        if nav is None:
+            return "- | -"
+        n = nav[group][key]["mean"] if key != "all" else nav["all"]["mean"]
+        ours = tables[f"rmse_{axis}"][group][key]["mean"] if key != "all" else tables[f"rmse_{axis}"]["all"]["mean"]
+        return f"{n:.3f} | {100 * (1 - n / ours):.0f} %"
+
     if "horizontal" in sweeps:
-        t = sweeps["horizontal"]["tables"]["rmse_xy"]
+        tables = sweeps["horizontal"]["tables"]
+        t = tables["rmse_xy"]
         lines += ["### Horizontal (225 episodes): PD RMSE by mean wind speed", "",
-                  "| U (m/s) | ours mean +- std (m) | median | max | paper (m) | ratio |", "|---|---|---|---|---|---|"]
+                  "| U (m/s) | ours mean +- std (m) | median | max | paper (m) | ratio | nav (m) | headroom |",
+                  "|---|---|---|---|---|---|---|---|"]
         for key, row in _by_number(t["by_wind"]):
             ref = paper.HORIZONTAL_BY_WIND[float(key)]["pd"]
-            lines.append(f"| {key} | {row['mean']:.3f} +- {row['std']:.3f} | {row['median']:.3f} | {row['max']:.2f} | {ref:.3f} | {_ratio(row['mean'], ref)} |")
+            lines.append(f"| {key} | {row['mean']:.3f} +- {row['std']:.3f} | {row['median']:.3f} | {row['max']:.2f} | {ref:.3f} | "
+                         f"{_ratio(row['mean'], ref)} | {headroom(tables, 'by_wind', key)} |")
         a = t["all"]
         ref = paper.HORIZONTAL_BY_WIND["all"]["pd"]
-        lines.append(f"| all | {a['mean']:.3f} +- {a['std']:.3f} | {a['median']:.3f} | {a['max']:.2f} | {ref:.3f} | {_ratio(a['mean'], ref)} |")
+        lines.append(f"| all | {a['mean']:.3f} +- {a['std']:.3f} | {a['median']:.3f} | {a['max']:.2f} | {ref:.3f} | "
+                     f"{_ratio(a['mean'], ref)} | {headroom(tables, 'all', 'all')} |")
         lines += ["", "### Horizontal: PD RMSE by trajectory", "", "| trajectory | ours (m) | paper (m) | ratio |", "|---|---|---|---|"]
         for name, row in t["by_trajectory"].items():
             ref = paper.HORIZONTAL_BY_TRAJECTORY[name]["pd"]
             lines.append(f"| `{name}` | {row['mean']:.3f} | {ref:.3f} | {_ratio(row['mean'], ref)} |")
         lines.append("")
     if "vertical" in sweeps:
-        txy = sweeps["vertical"]["tables"]["rmse_xy"]
-        tz = sweeps["vertical"]["tables"]["rmse_z"]
+        tables = sweeps["vertical"]["tables"]
+        txy, tz = tables["rmse_xy"], tables["rmse_z"]
+        z_ref = paper.TRACKING_STATS["vertical_z"]["pd"][0]
         lines += ["### Vertical (144 episodes): PD horizontal (xy) RMSE by mean wind speed", "",
-                  "| U_mean (m/s) | ours xy mean +- std (m) | paper xy (m) | ratio | ours z (m) |", "|---|---|---|---|---|"]
+                  "| U_mean (m/s) | ours xy mean +- std (m) | paper xy (m) | ratio | nav xy (m) | headroom xy | ours z (m) | "
+                  f"ratio z (paper {z_ref:.2f}) | nav z (m) | headroom z |", "|---|---|---|---|---|---|---|---|---|---|"]
         for key, row in _by_number(txy["by_wind"]):
             ref = paper.VERTICAL_BY_WIND[float(key)]["pd"]
-            lines.append(f"| {key} | {row['mean']:.3f} +- {row['std']:.3f} | {ref:.3f} | {_ratio(row['mean'], ref)} | {tz['by_wind'][key]['mean']:.3f} |")
+            z = tz["by_wind"][key]["mean"]
+            lines.append(f"| {key} | {row['mean']:.3f} +- {row['std']:.3f} | {ref:.3f} | {_ratio(row['mean'], ref)} | "
+                         f"{headroom(tables, 'by_wind', key)} | {z:.3f} | {_ratio(z, z_ref)} | {headroom(tables, 'by_wind', key, 'z')} |")
         a, az = txy["all"], tz["all"]
         lines.append(f"| all | {a['mean']:.3f} +- {a['std']:.3f} | {paper.VERTICAL_BY_WIND['all']['pd']:.3f} | "
-                     f"{_ratio(a['mean'], paper.VERTICAL_BY_WIND['all']['pd'])} | {az['mean']:.3f} (paper {paper.TRACKING_STATS['vertical_z']['pd'][0]:.2f}) |")
+                     f"{_ratio(a['mean'], paper.VERTICAL_BY_WIND['all']['pd'])} | {headroom(tables, 'all', 'all')} | "
+                     f"{az['mean']:.3f} | {_ratio(az['mean'], z_ref)} | {headroom(tables, 'all', 'all', 'z')} |")
         lines.append("")
     if "ood" in sweeps:
         t = sweeps["ood"]["tables"]["rmse_xy"]
@@ -198,19 +218,25 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
     lines.append("against the true one, on the scored steps: error the vehicle cannot see and no controller can remove.")
     lines.append("*headroom* = 1 - nav error / PD RMSE: about the largest xy improvement any controller could reach.")
     lines.append("")
-    for sweep, b in budgets.items():
-        lines.append(f"**{sweep}** ({b['episodes']} episodes; mean RMSE in m)")
+    for key, b in budgets.items():
+        lines.append(f"**{b.get('sweep', key)}, sensing preset `{b.get('sensors', 'policy')}`** ({b['episodes']} episodes; mean RMSE in m; "
+                     "- = not flown)")
         lines.append("")
         lines.append("| sensing | PD xy: full wind | mean wind only | still air | nav error xy (full) | PD z (full) | nav error z (full) |"
-                     " headroom xy | wind-aware vs PD, xy (full wind) | wins | wind-aware vs PD, z |")
-        lines.append("|" + "---|" * 11)
+                     " headroom xy | headroom z | wind-aware vs PD, xy (full wind) | wins | wind-aware vs PD, z |")
+        lines.append("|" + "---|" * 12)
         for mode, cells in b["pd"].items():
-            full, vs = cells["full"], b["aware_vs_pd"][mode]
-            xy, z = vs["rmse_xy"], vs["rmse_z"]
-            lines.append(f"| {SENSING_LABEL.get(mode, mode)} | {full['rmse_xy']:.3f} | {cells['mean_only']['rmse_xy']:.3f} | "
-                         f"{cells['still']['rmse_xy']:.3f} | {full['nav_rmse_xy']:.3f} | {full['rmse_z']:.3f} | {full['nav_rmse_z']:.3f} | "
-                         f"{100 * (1 - full['nav_rmse_xy'] / full['rmse_xy']):.0f} % | {xy['improvement']:.1f} % ({xy['ci_low']:.1f}-{xy['ci_high']:.1f}) | {xy['wins']}/{xy['n']} | "
-                         f"{z['improvement']:.1f} % |")
+            full = cells["full"]
+            other = {w: f"{cells[w]['rmse_xy']:.3f}" if w in cells else "-" for w in ("mean_only", "still")}
+            row = (f"| {SENSING_LABEL.get(mode, mode)} | {full['rmse_xy']:.3f} | {other['mean_only']} | {other['still']} | "
+                   f"{full['nav_rmse_xy']:.3f} | {full['rmse_z']:.3f} | {full['nav_rmse_z']:.3f} | "
+                   f"{100 * (1 - full['nav_rmse_xy'] / full['rmse_xy']):.0f} % | {100 * (1 - full['nav_rmse_z'] / full['rmse_z']):.0f} % |")
+            if mode in b["aware_vs_pd"]:
+                xy, z = b["aware_vs_pd"][mode]["rmse_xy"], b["aware_vs_pd"][mode]["rmse_z"]
+                row += f" {xy['improvement']:.1f} % ({xy['ci_low']:.1f}-{xy['ci_high']:.1f}) | {xy['wins']}/{xy['n']} | {z['improvement']:.1f} % |"
+            else:
+                row += " - | - | - |"
+            lines.append(row)
         lines.append("")
     return "\n".join(lines)
 
@@ -227,8 +253,8 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
                  for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
     if ablations:
         parts.append(ablation_section(ablations))
-    budgets = {name: json.loads((results_dir / f"error_budget_{name}.json").read_text())
-               for name in ("horizontal", "vertical", "ood") if (results_dir / f"error_budget_{name}.json").exists()}
+    budgets = {path.stem[len("error_budget_"):]: json.loads(path.read_text())
+               for path in sorted(results_dir.glob("error_budget_*.json"))}
     if budgets:
         parts.append(error_budget_section(budgets))
     for section in sorted(sections_dir.glob("*.md")):
