@@ -334,7 +334,10 @@ class TrajectoryConfig:
     lawnmower_spacing_m: float = 60.0
     lawnmower_legs: int = 8
     vertical_top_m: float = 600.0  # paper
-    vertical_speed_m_s: float = 6.0  # horizontal speed of the vertical patterns
+    # horizontal speed of the vertical patterns: the survey cruise speed, as the horizontal
+    # patterns fly (was 6 m/s: then the drag and turn error a controller can act on was too small
+    # beside the navigation error to leave the paper's headroom; docs/simulator.md, experiment V2)
+    vertical_speed_m_s: float = 10.0
     vertical_climb_rate_m_s: tuple[float, float, float, float] = (3.0, 2.5, 2.5, 2.0)
     vertical_hold_s: float = 5.0  # hover at the top before the flight ends
     spiral_radius_m: float = 50.0
