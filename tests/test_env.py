@@ -166,11 +166,11 @@ def test_replay_under_another_controller_sees_the_same_world():
     b = _stepped(env_b, spec, 300, action_fn=lambda k: torch.rand(1, 4, generator=gen) * 2 - 1)
     assert not torch.allclose(a["truth", "pos"][:, -1], b["truth", "pos"][:, -1])
     sa, sb = env_a.state, env_b.state
-    for key in ("wind.phase", "wind.rotation", "wind.amplitude", "wind.k_scale", "sensor.bias"):
+    for key in ("wind.phase", "wind.field_in", "wind.field_out", "wind.amplitude", "wind.k_scale", "sensor.bias"):
         assert torch.equal(sa[key], sb[key]), key
     probe = torch.tensor([[10.0, -20.0, 30.0]])
-    wa = env_a.sim.atmosphere.isotropic_turbulence({k[5:]: v for k, v in sa.items() if k.startswith("wind.")}, probe)
-    wb = env_b.sim.atmosphere.isotropic_turbulence({k[5:]: v for k, v in sb.items() if k.startswith("wind.")}, probe)
+    wa = env_a.sim.atmosphere.unit_gust({k[5:]: v for k, v in sa.items() if k.startswith("wind.")}, probe)
+    wb = env_b.sim.atmosphere.unit_gust({k[5:]: v for k, v in sb.items() if k.startswith("wind.")}, probe)
     assert torch.equal(wa, wb)
 
 

@@ -48,6 +48,7 @@ from torch import Tensor
 from ..config import TurbulenceConfig, WindProfileConfig
 from .counter_rng import hash_normal, hash_uniform
 from .rotations import quat_to_rotmat
+from .trajectories import FIXED_ALTITUDE, TRAJECTORIES
 
 VON_KARMAN_KE_L = 0.746834  # k_e L: peak wavenumber of the von Karman energy spectrum
 VON_KARMAN_NORM = 1.452762  # makes the energy spectrum integrate to 3/2 sigma^2
@@ -119,6 +120,7 @@ class Atmosphere:
         self.stability_ratios = torch.tensor(
             [(1.0, v, w) for v, w in turbulence.stability_ratios], dtype=torch.float32, device=self.device
         )
+        self._fixed_altitude = torch.tensor([name in FIXED_ALTITUDE for name in TRAJECTORIES], device=self.device)
 
     # --- per-episode parameters ---------------------------------------------------------------
 
@@ -131,9 +133,24 @@ class Atmosphere:
         q = q / torch.sqrt(qw * qw + qx * qx + qy * qy + qz * qz).unsqueeze(-1)
         rotation = quat_to_rotmat(q)  # uniform on SO(3)
         base_from = torch.deg2rad(scenario["wind_dir_deg"].to(torch.float32))
-        # the skeleton is laid out in the frame of the flight's reference-height wind direction:
-        # a rotation about z taking east to the direction the wind blows towards, (-sin, -cos)
-        rotation = _matmul3(_rot_z(-torch.sin(base_from), -torch.cos(base_from)), rotation)
+        veer = torch.deg2rad(scenario["veer_deg_per_100m"].to(torch.float32)) / 100.0
+        # The anisotropy frame is the mean-wind frame (along, across, up) at the altitude the
+        # flight spends its time at: a horizontal pattern's altitude, the middle of a vertical
+        # pattern's climb (a vertical design carries its top altitude). It is fixed per episode:
+        # a frame that followed the veer with height would make the coordinate map below depend
+        # on z, whose derivative grows with the distance from the field's origin (km after the
+        # advection) and would destroy the divergence-freeness (docs/atmosphere.md, 2.3).
+        altitude = scenario["altitude_m"].to(torch.float32)
+        anchor = torch.where(self._fixed_altitude[scenario["traj_id"]], altitude, 0.5 * altitude)
+        z_ref = self.wind.reference_height_m
+        anchor_from = base_from + veer * (anchor.clamp_min(z_ref) - z_ref)
+        frame = _rot_z(-torch.sin(anchor_from), -torch.cos(anchor_from))  # columns: along, across, up
+        ratios = self.stability_ratios[scenario["stability"]]  # (1, sigma_v / sigma_u, sigma_w / sigma_u)
+        # gust(x) = sigma_u F D R v(R^T D^-1 F^T x): the coordinate map is the inverse transpose
+        # of the velocity map, so every mode's stretched wavevector stays perpendicular to its
+        # stretched velocity and the applied field is exactly divergence-free (docs/atmosphere.md)
+        field_out = _matmul3(frame * ratios.unsqueeze(-2), rotation)  # F D R
+        field_in = _matmul3(rotation.transpose(-1, -2), frame.transpose(-1, -2) / ratios.unsqueeze(-1))  # R^T D^-1 F^T
         length = scenario["turb_length_scale_m"].to(torch.float32)
         if self.shared_amplitude is not None:
             amplitude = self.shared_amplitude.expand(n, -1)
@@ -146,10 +163,11 @@ class Atmosphere:
             "wind_speed_ref": scenario["wind_speed_ref_m_s"].to(torch.float32),
             "wind_from0": base_from,
             "shear_alpha": scenario["shear_alpha"].to(torch.float32),
-            "veer_rad_per_m": torch.deg2rad(scenario["veer_deg_per_100m"].to(torch.float32)) / 100.0,
+            "veer_rad_per_m": veer,
             "intensity": scenario["turb_intensity"].to(torch.float32),
-            "ratios": self.stability_ratios[scenario["stability"]],
-            "rotation": rotation,
+            "ratios": ratios,
+            "field_in": field_in,
+            "field_out": field_out,
             "phase": 2 * math.pi * hash_uniform(seed, 0, _STREAM_PHASE, self.turbulence.num_modes),
             "amplitude": amplitude.contiguous(),
             "k_scale": k_scale.unsqueeze(-1),
@@ -175,27 +193,34 @@ class Atmosphere:
         speed, wind_from = self._profile(state, z)
         return torch.stack((-speed * torch.sin(wind_from), -speed * torch.cos(wind_from), torch.zeros_like(speed)), -1)
 
-    def isotropic_turbulence(self, state: dict[str, Tensor], field_pos: Tensor) -> Tensor:
-        """Unit-variance isotropic field (ENU) at positions in the frozen field's frame.
+    def unit_gust(self, state: dict[str, Tensor], field_pos: Tensor) -> Tensor:
+        """The episode's anisotropic gust (ENU) per unit sigma_u, at positions in the frozen field's frame.
 
-        ``field_pos`` is ``[N, 3]`` (or ``[..., N, 3]``: several points per episode). Written
-        with elementwise operations in a fixed order and one sum over each row's contiguous
-        modes, never a matmul: BLAS picks kernels (and summation orders) by the batch size, which
-        made a row's wind depend on how many rows shared its batch (tests/test_atmosphere.py).
+        ``F D R v(R^T D^-1 F^T x)``: ``v`` the unit-variance mode sum in the skeleton frame, ``R``
+        the episode's rotation, ``D = diag(1, sigma_v / sigma_u, sigma_w / sigma_u)`` its
+        regime's ratios in the anchor frame ``F`` (``init_state``). ``field_pos`` is ``[N, 3]``
+        (or ``[..., N, 3]``: several points per episode). Written with elementwise operations in
+        a fixed order and one sum over each row's contiguous modes, never a matmul: BLAS picks
+        kernels (and summation orders) by the batch size, which made a row's wind depend on how
+        many rows shared its batch (tests/test_atmosphere.py).
         """
-        rot = state["rotation"]
+        m_in, m_out = state["field_in"], state["field_out"]
         x, y, z = field_pos[..., 0], field_pos[..., 1], field_pos[..., 2]
         k_scale = state["k_scale"]
         theta = state["phase"]
-        for c in range(3):  # theta = phase + sum_c (R^T x)_c k_scale kappa_m d_mc
-            local = x * rot[..., 0, c] + y * rot[..., 1, c] + z * rot[..., 2, c]
+        for c in range(3):  # theta = phase + sum_c (M_in x)_c k_scale kappa_m d_mc
+            local = x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2]
             theta = theta + (local.unsqueeze(-1) * k_scale) * self._wavevector[:, c]
         modes = torch.cos(theta) * state["amplitude"]
         bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1) for c in range(3))  # skeleton frame
-        return torch.stack([rot[..., r, 0] * bx + rot[..., r, 1] * by + rot[..., r, 2] * bz for r in range(3)], -1)
+        return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
 
     def turbulence_sigma(self, state: dict[str, Tensor], mean: Tensor, z: Tensor) -> Tensor:
-        """``[N, 3]`` standard deviations (longitudinal, lateral, vertical) at altitude ``z``."""
+        """``[N, 3]`` requested standard deviations at altitude ``z``, in the episode's anchor frame.
+
+        (along, across, up) of the mean wind at the anchor altitude (``init_state``); the gust
+        is ``sigma_u`` times ``unit_gust``, whose ensemble variances are ``(1, r_v^2, r_w^2)``.
+        """
         z_ref = self.wind.reference_height_m
         speed = torch.sqrt(mean[..., 0] * mean[..., 0] + mean[..., 1] * mean[..., 1])
         decay = torch.exp(-self.turbulence.intensity_altitude_exponent * torch.log(z.clamp_min(z_ref) / z_ref))
@@ -213,17 +238,8 @@ class Atmosphere:
         mean = self.mean_wind(state, z)
         total = mean
         if self.turbulence.enabled:
-            iso = self.isotropic_turbulence(state, pos - state["air_offset"])
-            sigma = self.turbulence_sigma(state, mean, z)
-            # anisotropy in the local mean-wind frame: rotate in, scale, rotate out; (c, s) is the
-            # unit vector the mean wind blows towards (no atan2: see _profile)
-            _, wind_from = self._profile(state, z)
-            c, s = -torch.sin(wind_from), -torch.cos(wind_from)
-            along = c * iso[..., 0] + s * iso[..., 1]
-            across = -s * iso[..., 0] + c * iso[..., 1]
-            along, across, up = sigma[..., 0] * along, sigma[..., 1] * across, sigma[..., 2] * iso[..., 2]
-            gust = torch.stack((c * along - s * across, s * along + c * across, up), -1)
-            total = mean + gust
+            sigma_u = self.turbulence_sigma(state, mean, z)[..., :1]
+            total = mean + sigma_u * self.unit_gust(state, pos - state["air_offset"])
         if self.wind.cap_applies_to == "total":
             total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
         state = dict(state, air_offset=state["air_offset"] + dt * mean)
