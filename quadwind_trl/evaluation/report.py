@@ -217,6 +217,8 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
     lines.append("(`quadwind_trl/evaluation/error_budget.py`). *nav error* is the RMSE of the position the PD flies on")
     lines.append("against the true one, on the scored steps: error the vehicle cannot see and no controller can remove.")
     lines.append("*headroom* = 1 - nav error / PD RMSE: about the largest xy improvement any controller could reach.")
+    lines.append("The shipped policies' own vehicle (`legacy_walk` sensing, before bounded biases) has its budgets in")
+    lines.append("`results/legacy/`; the reading of the RL results below refers to those.")
     lines.append("")
     for key, b in budgets.items():
         lines.append(f"**{b.get('sweep', key)}, sensing preset `{b.get('sensors', 'policy')}`** ({b['episodes']} episodes; mean RMSE in m; "
