@@ -281,7 +281,12 @@ def test_pd_tracks_every_trajectory_in_still_air():
     res = fly(env, sc)
     assert not res.crashed.any()
     drag_lag = HALF_RHO * VEH.drag_area_xy_m2 * cfg.trajectories.cruise_speed_m_s**2 / (VEH.mass_kg * 5.0)
-    assert (res.rmse < drag_lag + 0.05).all(), dict(zip(TRAJECTORIES, res.rmse.tolist()))
+    # the vertical scan turns on 20 m semicircles at 10 m/s: 5 m/s^2 of centripetal demand that
+    # reverses every leg, so the attitude loop's lag at each turn entry adds to the drag lag
+    # (0.39 m measured; docs/simulator.md, trajectories)
+    bound = torch.full((len(TRAJECTORIES),), drag_lag + 0.05)
+    bound[TRAJECTORIES.index("lawnmower_scan")] = drag_lag + 0.25
+    assert (res.rmse < bound).all(), dict(zip(TRAJECTORIES, res.rmse.tolist()))
     assert res.rmse[0] > 0.8 * drag_lag  # the loiter circle shows the lag
     assert (res.nav_rmse_xy == 0).all() and (res.nav_rmse_z == 0).all()  # truth feedback: nothing unseen
 
