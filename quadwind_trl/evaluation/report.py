@@ -221,7 +221,7 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
     lines.append("`results/legacy/`; the reading of the RL results below refers to those.")
     lines.append("")
     for key, b in budgets.items():
-        lines.append(f"**{b.get('sweep', key)}, sensing preset `{b.get('sensors', 'policy')}`** ({b['episodes']} episodes; mean RMSE in m; "
+        lines.append(f"**{b.get('sweep', key)}, sensing preset `{b.get('sensors', 'policy')}`** (`results/{key}.json`; {b['episodes']} episodes; mean RMSE in m; "
                      "- = not flown)")
         lines.append("")
         lines.append("| sensing | PD xy: full wind | mean wind only | still air | nav error xy (full) | PD z (full) | nav error z (full) |"
@@ -255,8 +255,10 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
                  for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
     if ablations:
         parts.append(ablation_section(ablations))
-    budgets = {path.stem[len("error_budget_"):]: json.loads(path.read_text())
-               for path in sorted(results_dir.glob("error_budget_*.json"))}
+    # the current vehicle's budgets, then the shipped policies' own (legacy_walk) ones
+    budgets = {f"{path.parent.name}/{path.stem}": json.loads(path.read_text())
+               for pattern in ("error_budget_*.json", "legacy/error_budget_*.json")
+               for path in sorted(results_dir.glob(pattern))}
     if budgets:
         parts.append(error_budget_section(budgets))
     for section in sorted(sections_dir.glob("*.md")):
