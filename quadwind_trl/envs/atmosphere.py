@@ -20,8 +20,18 @@ from sweeping through the field at a spurious speed).
 Batched cheaply: all sub-envs share one *skeleton* of unit wavevector directions and mode
 velocity directions; each sub-env gets its own uniformly random 3-D rotation of the skeleton,
 its own phases and its own length scale, so one episode's field is a function of its own seed
-only, and the evaluation is two small matmuls. Averaged over rotations the skeleton is exactly
-isotropic, so the realised statistics pooled over episodes are the requested ones.
+only, and the evaluation is elementwise products over the modes. Averaged over rotations the
+skeleton is exactly isotropic, so the realised statistics pooled over episodes are the requested ones.
+
+Stability anisotropy, exactly divergence-free: with ``v`` the unit isotropic field,
+``F`` the mean-wind frame (along, across, up) at the episode's anchor altitude, ``R`` its
+rotation and ``D = diag(1, sigma_v/sigma_u, sigma_w/sigma_u)``, the gust is
+``sigma_u(z) F D R v(R^T D^-1 F^T x)``. Its Jacobian is ``F D R J_v R^T D^-1 F^T``, whose
+trace is ``trace(J_v) = 0``: a linear change of coordinates paired with its inverse transpose
+on the velocity (each mode's wavevector ``D^-1 k``, velocity ``D d``: still perpendicular). The
+component variances become ``sigma_u^2 D^2``; the longitudinal component along the mean wind
+is ``v``'s own, so L and the spectrum along the wind are unchanged. The only divergence left
+is the product rule on ``sigma_u(z)``: ``sigma_u'/sigma_u * w`` (docs/atmosphere.md 2.3).
 
 Layouts (``TurbulenceConfig.layout``):
 
@@ -29,14 +39,12 @@ Layouts (``TurbulenceConfig.layout``):
   (default 2 pi / 60 to 800, i.e. k up to 2-16 rad/m for L = 400-50 m), amplitudes normalised
   so each component has exactly unit variance before scaling (the 1.4 % of variance above the
   top mode is folded into the resolved modes).
-* ``"paper_cube"``: the paper's cube, physical k linear from 2 pi / 1200 m to the 64-point
-  grid's Nyquist pi / 18.75 m, amplitudes straight from the spectrum: it realises only the
-  variance its k range holds (60-80 %).
+* ``"paper_grid"``: the paper's field: a bank of 64^3 cubes over 1200 m synthesised
+  TurboGenPY's way on the grid (``synthesise_cube``), trilinear interpolation, periodic
+  wrap-around; the same stretch and rotation map positions into the cube.
 
-Intensity and anisotropy: ``sigma_u = I U(z) (max(z, z_ref)/z_ref)^(-e)`` with a mild
-``e = TurbulenceConfig.intensity_altitude_exponent``; ``sigma_v``, ``sigma_w`` follow from the
-stability regime's ratios, applied in the frame of the local mean wind (longitudinal, lateral,
-vertical).
+Intensity: ``sigma_u = I U(z) (max(z, z_ref)/z_ref)^(-e)`` with a mild
+``e = TurbulenceConfig.intensity_altitude_exponent``.
 """
 from __future__ import annotations
 
