@@ -440,7 +440,7 @@ def test_inertial_range_slope_is_minus_five_thirds(hover_record):
 
 @pytest.fixture(scope="module")
 def grid_atmosphere():
-    return Atmosphere(WindProfileConfig(), TurbulenceConfig(layout="paper_grid"))  # ~15 s: the cube bank
+    return Atmosphere(WindProfileConfig(), TurbulenceConfig(layout="paper_grid"))  # ~35 s: the cube bank
 
 
 def test_paper_grid_interpolates_the_cube_trilinearly_with_wrap_around(grid_atmosphere):

@@ -115,10 +115,11 @@ def synthesise_cube(cfg: TurbulenceConfig, length_scale: float, realisation: int
     centres = (torch.arange(points, dtype=torch.float64) + 0.5) * (size / points)
     gx, gy = torch.meshgrid(centres, centres, indexing="ij")
     cube = torch.empty(points, points, points, 3, dtype=torch.float64)
+    # elementwise sums, never a matmul: the bank must not depend on BLAS's thread count (replay)
     for iz, z in enumerate(centres):  # one z-plane at a time: [P * P, M] phases
-        pts = torch.stack((gx.reshape(-1), gy.reshape(-1), torch.full((points * points,), float(z), dtype=torch.float64)), -1)
-        modes = torch.cos(pts @ wavevector.T + phase) * amplitude
-        cube[:, :, iz] = (modes @ velocity).reshape(points, points, 3)
+        theta = phase + gx.reshape(-1, 1) * wavevector[:, 0] + gy.reshape(-1, 1) * wavevector[:, 1] + float(z) * wavevector[:, 2]
+        modes = torch.cos(theta) * amplitude
+        cube[:, :, iz] = torch.stack([(modes * velocity[:, c]).sum(-1) for c in range(3)], -1).reshape(points, points, 3)
     return cube.to(torch.float32)
 
 
