@@ -10,7 +10,8 @@ layout and length scale:
 * the longitudinal integral scale from a least-squares fit of the von Karman form
   ``Phi_u(k) = sigma^2 (2L/pi) / (1 + (1.339 L k)^2)^(5/6)`` to the pooled Welch spectrum;
 * the log-log slope of that spectrum over 5 < k L < 40 (clipped below the layout's top mode);
-* for ``paper_cube``, the variance its k range holds by the analytic spectrum.
+* for ``paper_grid``, the variance its k range holds by the analytic spectrum at the bank's
+  nearest length scale (the episode's cube is the bank's at that L).
 
     python bench/turbulence_statistics.py                 # the table in docs/atmosphere.md
     python bench/turbulence_statistics.py --n 128 --lengths 150 --layouts full
@@ -56,6 +57,8 @@ def hover_record(layout: str, length: float, n: int, steps: int, dt: float, seed
     stability = torch.arange(n) % 3
     sc = make_scenarios(
         n,
+        traj_id="hover",
+        altitude_m=ALTITUDE_M,  # the anisotropy frame is the mean-wind frame at this altitude
         wind_speed_ref_m_s=MEAN_WIND_M_S / (ALTITUDE_M / 10.0) ** ALPHA,
         shear_alpha=ALPHA,
         veer_deg_per_100m=6.0,
@@ -110,7 +113,8 @@ def analyse(gust: np.ndarray, sigma: np.ndarray, dx: float, length: float, k_top
 
 
 def cube_fraction(length: float) -> float:
-    cfg = TurbulenceConfig(layout="paper_cube")
+    cfg = TurbulenceConfig(layout="paper_grid")
+    length = min(cfg.cube_length_scales_m, key=lambda b: abs(math.log(b / length)))  # the bank's nearest
     k_min, k_max = 2 * math.pi / cfg.cube_size_m, math.pi / (cfg.cube_size_m / cfg.cube_points)
     energy = lambda k: von_karman_energy(torch.tensor(k, dtype=torch.float64), length).item()  # noqa: E731
     return quad(energy, k_min, k_max, limit=200)[0] / 1.5
@@ -120,7 +124,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--n", type=int, default=384, help="sub-envs (a multiple of 3: one third per stability regime)")
     parser.add_argument("--lengths", type=float, nargs="+", default=[60.0, 150.0, 300.0])
-    parser.add_argument("--layouts", nargs="+", default=["full", "paper_cube"])
+    parser.add_argument("--layouts", nargs="+", default=["full", "paper_grid"])
     parser.add_argument("--per-l", type=int, default=50, help="samples per integral scale")
     parser.add_argument("--span-l", type=float, default=82.0, help="integral scales per sub-env")
     parser.add_argument("--segment-l", type=float, default=41.0, help="Welch segment length in integral scales")

@@ -173,33 +173,52 @@ class WindProfileConfig:
 
 @dataclass(frozen=True)
 class TurbulenceConfig:
-    """Spectral-mode von Karman turbulence (TurboGenPY-style), evaluated at the vehicle.
+    """Spectral-mode von Karman turbulence (TurboGenPY-style); docs/atmosphere.md section 2.
 
     ``layout="full"`` (default): ``num_modes`` log-spaced dimensionless wavenumbers
-    ``kappa = k L`` over ``kappa_range``, amplitudes normalised to the requested variance.
-    ``layout="paper_cube"``: the paper's stated cube, linear k from ``2 pi / cube_size_m`` to
-    the grid's Nyquist ``pi / (cube_size_m / cube_points)``, no renormalisation, so it
-    realises only the variance its k range holds.
+    ``kappa = k L`` over ``kappa_range``, amplitudes normalised to the requested variance,
+    evaluated at the vehicle (no grid).
+    ``layout="paper_grid"``: the paper's stated field: ``cube_points``^3 cubes over
+    ``cube_size_m`` synthesised TurboGenPY's way on the grid (k linear from ``2 pi / cube_size_m``
+    to the grid's Nyquist, no renormalisation), interpolated trilinearly with periodic
+    wrap-around. A bank of ``cube_bank_size`` realisations per length scale of
+    ``cube_length_scales_m`` (m) is shared by all episodes (3 MB each); an episode uses the
+    nearest length scale, a realisation picked by its seed, its own rotation and offset.
+    Both layouts get the same exactly divergence-free stability anisotropy.
     """
 
     enabled: bool = True
     num_modes: int = 300  # paper
-    layout: Literal["full", "paper_cube"] = "full"
-    kappa_range: tuple[float, float] = (2 * math.pi / 60.0, 800.0)
+    layout: Literal["full", "paper_grid"] = "full"
+    kappa_range: tuple[float, float] = (2 * math.pi / 60.0, 800.0)  # dimensionless k L
     cube_size_m: float = 1200.0  # paper
     cube_points: int = 64  # paper
+    cube_length_scales_m: tuple[float, ...] = (60.0, 90.0, 135.0, 200.0, 300.0)  # spans the designs' 60-300 m
+    cube_bank_size: int = 2  # realisations per length scale
     skeleton_seed: int = 20240611
     intensity_altitude_exponent: float = 0.05  # sigma_u = I U(z) (z/z_ref)^(-this): mild decay
     # sigma_v / sigma_u and sigma_w / sigma_u for the neutral, stable and convective regimes
-    # (after Panofsky & Dutton 1984 and Stull 1988; see docs/simulator.md)
+    # (after Panofsky & Dutton 1984 and Stull 1988; see docs/atmosphere.md)
     stability_ratios: tuple[tuple[float, float], ...] = ((0.80, 0.52), (0.75, 0.45), (0.95, 0.80))
 
     def validate(self) -> None:
-        if self.layout not in ("full", "paper_cube"):
-            raise ValueError(f"TurbulenceConfig.layout={self.layout!r}; allowed: 'full', 'paper_cube'")
+        if self.layout not in ("full", "paper_grid"):
+            raise ValueError(f"TurbulenceConfig.layout={self.layout!r}; allowed: 'full', 'paper_grid'")
         _check_range("TurbulenceConfig", "num_modes", self.num_modes, 1, 100_000)
         if not 0 < self.kappa_range[0] < self.kappa_range[1]:
             raise ValueError(f"TurbulenceConfig.kappa_range={self.kappa_range!r} must be increasing and positive")
+        _check_range("TurbulenceConfig", "cube_points", self.cube_points, 2, 512)
+        _check_range("TurbulenceConfig", "cube_bank_size", self.cube_bank_size, 1, 1000)
+        if self.cube_size_m <= 0 or not self.cube_length_scales_m or min(self.cube_length_scales_m) <= 0:
+            raise ValueError(
+                f"TurbulenceConfig.cube_size_m={self.cube_size_m}, cube_length_scales_m={self.cube_length_scales_m}: "
+                "allowed a positive size and a non-empty tuple of positive length scales (m)"
+            )
+        if len(self.stability_ratios) != 3 or any(not (r > 0) for pair in self.stability_ratios for r in pair):
+            raise ValueError(
+                f"TurbulenceConfig.stability_ratios={self.stability_ratios!r}: allowed three (sigma_v/sigma_u, "
+                "sigma_w/sigma_u) pairs (neutral, stable, convective), every ratio > 0 (the stretch divides by them)"
+            )
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,18 @@ from sweeping through the field at a spurious speed).
 Batched cheaply: all sub-envs share one *skeleton* of unit wavevector directions and mode
 velocity directions; each sub-env gets its own uniformly random 3-D rotation of the skeleton,
 its own phases and its own length scale, so one episode's field is a function of its own seed
-only, and the evaluation is two small matmuls. Averaged over rotations the skeleton is exactly
-isotropic, so the realised statistics pooled over episodes are the requested ones.
+only, and the evaluation is elementwise products over the modes. Averaged over rotations the
+skeleton is exactly isotropic, so the realised statistics pooled over episodes are the requested ones.
+
+Stability anisotropy, exactly divergence-free: with ``v`` the unit isotropic field,
+``F`` the mean-wind frame (along, across, up) at the episode's anchor altitude, ``R`` its
+rotation and ``D = diag(1, sigma_v/sigma_u, sigma_w/sigma_u)``, the gust is
+``sigma_u(z) F D R v(R^T D^-1 F^T x)``. Its Jacobian is ``F D R J_v R^T D^-1 F^T``, whose
+trace is ``trace(J_v) = 0``: a linear change of coordinates paired with its inverse transpose
+on the velocity (each mode's wavevector ``D^-1 k``, velocity ``D d``: still perpendicular). The
+component variances become ``sigma_u^2 D^2``; the longitudinal component along the mean wind
+is ``v``'s own, so L and the spectrum along the wind are unchanged. The only divergence left
+is the product rule on ``sigma_u(z)``: ``sigma_u'/sigma_u * w`` (docs/atmosphere.md 2.3).
 
 Layouts (``TurbulenceConfig.layout``):
 
@@ -29,14 +39,12 @@ Layouts (``TurbulenceConfig.layout``):
   (default 2 pi / 60 to 800, i.e. k up to 2-16 rad/m for L = 400-50 m), amplitudes normalised
   so each component has exactly unit variance before scaling (the 1.4 % of variance above the
   top mode is folded into the resolved modes).
-* ``"paper_cube"``: the paper's cube, physical k linear from 2 pi / 1200 m to the 64-point
-  grid's Nyquist pi / 18.75 m, amplitudes straight from the spectrum: it realises only the
-  variance its k range holds (60-80 %).
+* ``"paper_grid"``: the paper's field: a bank of 64^3 cubes over 1200 m synthesised
+  TurboGenPY's way on the grid (``synthesise_cube``), trilinear interpolation, periodic
+  wrap-around; the same stretch and rotation map positions into the cube.
 
-Intensity and anisotropy: ``sigma_u = I U(z) (max(z, z_ref)/z_ref)^(-e)`` with a mild
-``e = TurbulenceConfig.intensity_altitude_exponent``; ``sigma_v``, ``sigma_w`` follow from the
-stability regime's ratios, applied in the frame of the local mean wind (longitudinal, lateral,
-vertical).
+Intensity: ``sigma_u = I U(z) (max(z, z_ref)/z_ref)^(-e)`` with a mild
+``e = TurbulenceConfig.intensity_altitude_exponent``.
 """
 from __future__ import annotations
 
@@ -46,7 +54,7 @@ import torch
 from torch import Tensor
 
 from ..config import TurbulenceConfig, WindProfileConfig
-from .counter_rng import hash_normal, hash_uniform
+from .counter_rng import hash_bits, hash_normal, hash_uniform
 from .rotations import quat_to_rotmat
 from .trajectories import FIXED_ALTITUDE, TRAJECTORIES
 
@@ -55,6 +63,8 @@ VON_KARMAN_NORM = 1.452762  # makes the energy spectrum integrate to 3/2 sigma^2
 
 _STREAM_ROTATION = 101
 _STREAM_PHASE = 102
+_STREAM_CUBE = 103
+_STREAM_CUBE_OFFSET = 104
 
 
 def von_karman_energy(k: Tensor, length_scale: Tensor | float, sigma: Tensor | float = 1.0) -> Tensor:
@@ -71,15 +81,46 @@ def von_karman_longitudinal(kappa: Tensor, length_scale: float, sigma: float = 1
     return sigma**2 * (2 * length_scale / math.pi) / (1 + (1.339 * length_scale * kappa) ** 2) ** (5.0 / 6.0)
 
 
-def _mode_widths(k: Tensor, log_spaced: bool) -> Tensor:
-    if log_spaced:
-        logk = k.log()
-        mid = 0.5 * (logk[1:] + logk[:-1])
-        edges = torch.cat((2 * logk[:1] - mid[:1], mid, 2 * logk[-1:] - mid[-1:])).exp()
-    else:
-        mid = 0.5 * (k[1:] + k[:-1])
-        edges = torch.cat((2 * k[:1] - mid[:1], mid, 2 * k[-1:] - mid[-1:]))
+def _mode_widths(k: Tensor) -> Tensor:
+    """Widths of log-spaced wavenumbers' bins (edges midway in log k)."""
+    logk = k.log()
+    mid = 0.5 * (logk[1:] + logk[:-1])
+    edges = torch.cat((2 * logk[:1] - mid[:1], mid, 2 * logk[-1:] - mid[-1:])).exp()
     return edges[1:] - edges[:-1]
+
+
+def synthesise_cube(cfg: TurbulenceConfig, length_scale: float, realisation: int) -> Tensor:
+    """``[P, P, P, 3]`` float32 unit-sigma isotropic cube, TurboGenPY's construction (Saad et al.).
+
+    ``P = cube_points`` cells over ``cube_size_m``, values at the cell centres ``(i + 1/2) h``;
+    ``num_modes`` wavenumbers at the centres of equal bins from ``2 pi / cube_size_m`` to the
+    grid's Nyquist ``pi / h``; directions uniform on the sphere, each mode's velocity
+    perpendicular to its wavevector, phases uniform; amplitudes ``2 sqrt(E(k; L) dk)`` with no
+    renormalisation, so the cube holds only the variance its k range holds. As in TurboGenPY
+    the wavevectors are not commensurate with the box, so the wrapped field jumps at the faces.
+    Computed in float64 from a generator seeded by (``skeleton_seed``, L, ``realisation``).
+    """
+    m, points, size = cfg.num_modes, cfg.cube_points, cfg.cube_size_m
+    gen = torch.Generator().manual_seed(cfg.skeleton_seed + 1_000_003 * realisation + int(round(length_scale * 1000)))
+    direction = torch.randn(m, 3, generator=gen, dtype=torch.float64)
+    direction = direction / direction.norm(dim=-1, keepdim=True)
+    velocity = torch.linalg.cross(direction, torch.randn(m, 3, generator=gen, dtype=torch.float64))
+    velocity = velocity / velocity.norm(dim=-1, keepdim=True)
+    phase = 2 * math.pi * torch.rand(m, generator=gen, dtype=torch.float64)
+    k_lo, k_hi = 2 * math.pi / size, math.pi / (size / points)
+    dk = (k_hi - k_lo) / m
+    k = k_lo + dk * (torch.arange(m, dtype=torch.float64) + 0.5)
+    amplitude = 2.0 * (von_karman_energy(k, length_scale) * dk).sqrt()
+    wavevector = k.unsqueeze(-1) * direction  # [M, 3]
+    centres = (torch.arange(points, dtype=torch.float64) + 0.5) * (size / points)
+    gx, gy = torch.meshgrid(centres, centres, indexing="ij")
+    cube = torch.empty(points, points, points, 3, dtype=torch.float64)
+    # elementwise sums, never a matmul: the bank must not depend on BLAS's thread count (replay)
+    for iz, z in enumerate(centres):  # one z-plane at a time: [P * P, M] phases
+        theta = phase + gx.reshape(-1, 1) * wavevector[:, 0] + gy.reshape(-1, 1) * wavevector[:, 1] + float(z) * wavevector[:, 2]
+        modes = torch.cos(theta) * amplitude
+        cube[:, :, iz] = torch.stack([(modes * velocity[:, c]).sum(-1) for c in range(3)], -1).reshape(points, points, 3)
+    return cube.to(torch.float32)
 
 
 class Atmosphere:
@@ -99,24 +140,25 @@ class Atmosphere:
         velocity_dir = torch.linalg.cross(direction, helper)
         velocity_dir = velocity_dir / velocity_dir.norm(dim=-1, keepdim=True)
 
-        if turbulence.layout == "full":
-            lo, hi = turbulence.kappa_range
-            kappa = torch.logspace(math.log10(lo), math.log10(hi), m, dtype=torch.float64)
-            energy = von_karman_energy(kappa, 1.0) * _mode_widths(kappa, log_spaced=True)
-            amp = 2.0 * energy.sqrt()
-            amp = amp * math.sqrt(3.0 / (0.5 * (amp**2).sum()))  # unit variance per component
-            self.shared_amplitude: Tensor | None = amp.to(torch.float32).to(self.device)
-        else:
-            spacing = turbulence.cube_size_m / turbulence.cube_points
-            kappa = torch.linspace(2 * math.pi / turbulence.cube_size_m, math.pi / spacing, m, dtype=torch.float64)
-            self.shared_amplitude = None
-            self._paper_widths = _mode_widths(kappa, log_spaced=False).to(torch.float32).to(self.device)
-        self.wavenumber = kappa.to(torch.float32).to(self.device)  # kappa (full) or k in rad/m (cube)
+        # the full layout's shared skeleton (the grid layout synthesises its own cubes' modes)
+        lo, hi = turbulence.kappa_range
+        kappa = torch.logspace(math.log10(lo), math.log10(hi), m, dtype=torch.float64)
+        energy = von_karman_energy(kappa, 1.0) * _mode_widths(kappa)
+        amp = 2.0 * energy.sqrt()
+        amp = amp * math.sqrt(3.0 / (0.5 * (amp**2).sum()))  # unit variance per component
+        self.shared_amplitude = amp.to(torch.float32).to(self.device)
+        self.wavenumber = kappa.to(torch.float32).to(self.device)  # kappa = k L
         self.wave_dir = direction.to(torch.float32).to(self.device)  # [M, 3]
         self.velocity_dir = velocity_dir.to(torch.float32).to(self.device)  # [M, 3]
-        # kappa_m d_m: dimensionless (full; scaled by 1 / L per episode) or in rad/m (cube)
-        self._wavevector = (kappa.unsqueeze(-1) * direction).to(torch.float32).to(self.device)  # [M, 3]
+        self._wavevector = (kappa.unsqueeze(-1) * direction).to(torch.float32).to(self.device)  # [M, 3], / L per episode
         self._velocity_dir_t = self.velocity_dir.T.contiguous()  # [3, M]
+        self.cube_bank: Tensor | None = None
+        if turbulence.layout == "paper_grid":
+            self.cube_bank = torch.stack(
+                [synthesise_cube(turbulence, length, realisation).to(self.device)
+                 for length in turbulence.cube_length_scales_m for realisation in range(turbulence.cube_bank_size)]
+            )  # fmt: skip  # [len(cube_length_scales_m) * cube_bank_size, P, P, P, 3]
+            self._cube_log_lengths = torch.tensor(turbulence.cube_length_scales_m, device=self.device).log()
         self.stability_ratios = torch.tensor(
             [(1.0, v, w) for v, w in turbulence.stability_ratios], dtype=torch.float32, device=self.device
         )
@@ -151,15 +193,7 @@ class Atmosphere:
         # stretched velocity and the applied field is exactly divergence-free (docs/atmosphere.md)
         field_out = _matmul3(frame * ratios.unsqueeze(-2), rotation)  # F D R
         field_in = _matmul3(rotation.transpose(-1, -2), frame.transpose(-1, -2) / ratios.unsqueeze(-1))  # R^T D^-1 F^T
-        length = scenario["turb_length_scale_m"].to(torch.float32)
-        if self.shared_amplitude is not None:
-            amplitude = self.shared_amplitude.expand(n, -1)
-            k_scale = 1.0 / length
-        else:
-            energy = von_karman_energy(self.wavenumber, length.unsqueeze(-1))
-            amplitude = 2.0 * (energy * self._paper_widths).sqrt()
-            k_scale = torch.ones_like(length)
-        return {
+        state = {
             "wind_speed_ref": scenario["wind_speed_ref_m_s"].to(torch.float32),
             "wind_from0": base_from,
             "shear_alpha": scenario["shear_alpha"].to(torch.float32),
@@ -168,11 +202,23 @@ class Atmosphere:
             "ratios": ratios,
             "field_in": field_in,
             "field_out": field_out,
-            "phase": 2 * math.pi * hash_uniform(seed, 0, _STREAM_PHASE, self.turbulence.num_modes),
-            "amplitude": amplitude.contiguous(),
-            "k_scale": k_scale.unsqueeze(-1),
             "air_offset": torch.zeros(n, 3, device=seed.device),
         }
+        length = scenario["turb_length_scale_m"].to(torch.float32)
+        if self.cube_bank is None:
+            state["phase"] = 2 * math.pi * hash_uniform(seed, 0, _STREAM_PHASE, self.turbulence.num_modes)
+            state["amplitude"] = self.shared_amplitude.expand(n, -1).contiguous()
+            state["k_scale"] = (1.0 / length).unsqueeze(-1)
+        else:
+            # the nearest length scale of the bank (in log L), one of its realisations by seed,
+            # and a uniform offset into the periodic cube: episodes sharing a cube still fly
+            # through different parts of it, in different orientations (R)
+            nearest = (length.log().unsqueeze(-1) - self._cube_log_lengths).abs().argmin(-1)
+            bank = self.turbulence.cube_bank_size
+            pick = hash_bits(seed, 0, _STREAM_CUBE, 1)[..., 0] % bank
+            state["cube"] = nearest * bank + pick
+            state["cube_offset"] = self.turbulence.cube_size_m * hash_uniform(seed, 0, _STREAM_CUBE_OFFSET, 3)
+        return state
 
     # --- evaluation ---------------------------------------------------------------------------
 
@@ -206,6 +252,10 @@ class Atmosphere:
         """
         m_in, m_out = state["field_in"], state["field_out"]
         x, y, z = field_pos[..., 0], field_pos[..., 1], field_pos[..., 2]
+        if self.cube_bank is not None:
+            local = [x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2] + state["cube_offset"][..., c] for c in range(3)]
+            bx, by, bz = self._interpolate_cube(state["cube"], local).unbind(-1)
+            return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
         k_scale = state["k_scale"]
         theta = state["phase"]
         for c in range(3):  # theta = phase + sum_c (M_in x)_c k_scale kappa_m d_mc
@@ -214,6 +264,35 @@ class Atmosphere:
         modes = torch.cos(theta) * state["amplitude"]
         bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1) for c in range(3))  # skeleton frame
         return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
+
+    def _interpolate_cube(self, cube: Tensor, local: list[Tensor]) -> Tensor:
+        """Trilinear interpolation ``[..., N, 3]`` of bank cubes ``cube`` ``[N]`` at skeleton-frame
+        positions ``local`` (three ``[..., N]``), wrapped periodically (the paper's wrap-around).
+
+        Cube values sit at cell centres ``(i + 1/2) h``; a position's cell and weights come from
+        ``floor`` and its remainder, the eight corners from one gather each, combined in a fixed
+        order (batch-independent, like the mode sum).
+        """
+        points = self.turbulence.cube_points
+        h = self.turbulence.cube_size_m / points
+        flat = self.cube_bank.reshape(-1, 3)
+        base = cube * points**3
+        index, weight = [], []
+        for c in range(3):
+            g = local[c] / h - 0.5
+            g0 = torch.floor(g)
+            frac = g - g0
+            i0 = torch.remainder(g0.to(torch.int64), points)
+            index.append((i0, torch.remainder(i0 + 1, points)))
+            weight.append((1.0 - frac, frac))
+        out = 0.0
+        for a in range(2):
+            for b in range(2):
+                for d in range(2):
+                    row = base + (index[0][a] * points + index[1][b]) * points + index[2][d]
+                    w = weight[0][a] * weight[1][b] * weight[2][d]
+                    out = out + w.unsqueeze(-1) * flat[row]
+        return out
 
     def turbulence_sigma(self, state: dict[str, Tensor], mean: Tensor, z: Tensor) -> Tensor:
         """``[N, 3]`` requested standard deviations at altitude ``z``, in the episode's anchor frame.
