@@ -19,11 +19,16 @@ same loop with no episode ending. ``partial_reset_ms`` is one ``env.reset`` of a
 (``"_reset"`` mask), ``partial_reset_in_steps`` the same in control steps of the steady loop.
 ``--atmosphere mean`` switches the turbulence off; ``--sensors 0`` the sensor suite (the PD then
 flies the true state); neither changes anything else.
+
+``--peer crazyflow`` adds, for every size, the same measurement of crazyflow 0.4 (JAX) in the same
+run (``bench/peer_crazyflow.py``), in a virtual environment made on demand under
+``.cache/peer-crazyflow`` (``pip install crazyflow==0.4.0``; a few minutes the first time).
 """
 from __future__ import annotations
 
 import argparse
 import resource
+from pathlib import Path
 import subprocess
 import sys
 import time
@@ -36,6 +41,18 @@ from quadwind_trl.config import ControllerConfig, EnvConfig, SensorConfig, Turbu
 from quadwind_trl.envs import QuadWindEnv, ScenarioSampler
 
 CONTROL_HZ = 100.0
+PEER_VENV = Path(__file__).resolve().parent.parent / ".cache" / "peer-crazyflow"
+PEER_REQUIREMENT = "crazyflow==0.4.0"
+
+
+def peer_python() -> Path:
+    """The peer's interpreter, installing crazyflow into its own venv on first use."""
+    python = PEER_VENV / "bin" / "python"
+    if not python.exists():
+        print(f"installing {PEER_REQUIREMENT} into {PEER_VENV} (first use)", flush=True)
+        subprocess.run([sys.executable, "-m", "venv", str(PEER_VENV)], check=True)
+        subprocess.run([str(python), "-m", "pip", "install", "-q", PEER_REQUIREMENT], check=True)
+    return python
 
 
 def make_config(atmosphere: str, sensors: bool) -> EnvConfig:
@@ -120,6 +137,7 @@ def main() -> None:
     parser.add_argument("--episode-s", type=float, default=200.0,
                         help="mean episode length that sets the reset rate (horizontal flights: ~190-200 s)")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--peer", choices=["crazyflow"], default=None, help="also measure a peer simulator, same N")
     parser.add_argument("--single", action="store_true", help="measure exactly one configuration in this process")
     args = parser.parse_args()
     if args.single:
@@ -142,6 +160,10 @@ def main() -> None:
                      "--episode-s", str(args.episode_s), "--threads", str(args.threads)],
                     check=True,
                 )
+    if args.peer == "crazyflow":
+        subprocess.run([str(peer_python()), str(Path(__file__).with_name("peer_crazyflow.py")), "--sizes",
+                        *map(str, args.sizes), "--seconds", str(args.seconds), "--threads", str(args.threads)],
+                       check=True)
 
 
 if __name__ == "__main__":
