@@ -9,8 +9,8 @@ Setup: the horizontal training env (``make_env``: ground starts, first-episode d
 the full transform stack), the TanhNormal 2x256 actor in RANDOM mode, TorchRL ``Collector``; the
 estimator is the shipped one if present, else an untrained one of the same architecture (same cost).
 Each size runs one warm-up batch, then ``--batches`` timed batches of ``N x --steps`` frames
-(``--steps`` a multiple of 10, so every row ticks the estimator equally often), then one PPO update
-(GAE + 10 epochs of 512-sample minibatches) on the last batch.
+(``--steps`` a multiple of 10, so every row ticks the estimator equally often), each followed, as in
+training, by its PPO update (GAE + 10 epochs of 512-sample minibatches), every update timed.
 
 One parseable line per size:
 ``collect_throughput N=... steps=... threads=... env_steps_per_s=... collect_s=... sim_s=...
@@ -23,6 +23,7 @@ import argparse
 import time
 
 import torch
+from machine import load_1min, machine_line
 
 
 def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dict:
@@ -65,40 +66,42 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     actor, value = build_actor_critic(cfg)
     collector = Collector(env, actor, frames_per_batch=n * steps, total_frames=n * steps * (batches + 1),
                           exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
-    it = iter(collector)
-    next(it)  # warm-up
-    sim_time[0] = tick_time[0] = 0.0
-    west.estimator_seconds = 0.0
-    t0 = time.perf_counter()
-    data = None
-    for _ in range(batches):
-        data = next(it)
-    collect_s = time.perf_counter() - t0
-    sim_s, est_all_s, est_net_s = sim_time[0], tick_time[0], west.estimator_seconds
-    collector.shutdown()
-
     loss = ClipPPOLoss(actor, value, clip_epsilon=0.2, entropy_coeff=0.005, critic_coeff=0.5, loss_critic_type="l2",
                        normalize_advantage=True)
     gae = GAE(gamma=0.99, lmbda=0.95, value_network=value)
     optim = torch.optim.Adam(loss.parameters(), lr=3e-4, eps=1e-5)
     keys = ("observation", "action", "action_log_prob", ("next", "observation"), ("next", "reward"),
             ("next", "done"), ("next", "terminated"), ("next", "truncated"))
-    t0 = time.perf_counter()
-    batch = data.select(*keys)
-    with torch.no_grad():
-        gae(batch)
-    flat = batch.reshape(-1)
-    for _ in range(cfg.epochs):
-        for idx in torch.randperm(flat.batch_size[0]).split(cfg.minibatch):
-            out = loss(flat[idx])
-            optim.zero_grad()
-            (out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]).backward()
-            torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
-            optim.step()
-    update_s = time.perf_counter() - t0
+
+    def update(data) -> None:
+        batch = data.select(*keys)
+        with torch.no_grad():
+            gae(batch)
+        flat = batch.reshape(-1)
+        for _ in range(cfg.epochs):
+            for idx in torch.randperm(flat.batch_size[0]).split(cfg.minibatch):
+                out = loss(flat[idx])
+                optim.zero_grad()
+                (out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]).backward()
+                torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
+                optim.step()
+
+    it = iter(collector)
+    next(it)  # warm-up
+    sim_time[0] = tick_time[0] = 0.0
+    west.estimator_seconds = 0.0
+    # as in training: collect a batch, update on it (the collector's policy is the updated actor),
+    # every batch timed
+    collect_s = update_total = 0.0
+    for _ in range(batches):
+        t0 = time.perf_counter()
+        data = next(it)
+        t1 = time.perf_counter()
+        update(data)
+        collect_s, update_total = collect_s + t1 - t0, update_total + time.perf_counter() - t1
+    sim_s, est_all_s, est_net_s = sim_time[0], tick_time[0], west.estimator_seconds
+    collector.shutdown()
     frames = n * steps * batches
-    # the update runs once per batch in training: scale it to the timed batches
-    update_total = update_s * batches
     total = collect_s + update_total
     other_s = collect_s - sim_s - est_all_s
     return {
@@ -112,12 +115,13 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
         "estimator_all_s": round(est_all_s, 2),
         "other_s": round(other_s, 2),
         "update_s": round(update_total, 2),
-        "update_frames_per_s": round(n * steps / update_s),
+        "update_frames_per_s": round(frames / update_total),
         "share_sim": round(sim_s / total, 3),
         "share_estimator": round(est_all_s / total, 3),
         "share_other": round(other_s / total, 3),
         "share_update": round(update_total / total, 3),
         "estimator": "shipped" if path else "untrained(same-architecture)",
+        "load_1min": round(load_1min(), 2),
     }
 
 
@@ -132,6 +136,7 @@ def main() -> None:
     if args.steps % 10:
         parser.error("--steps must be a multiple of 10 (the estimator ticks every 10 control steps)")
     torch.set_num_threads(args.threads)
+    print(machine_line(args.threads), flush=True)
     for n in args.sizes:
         r = measure(n, args.steps, args.batches, args.estimator)
         print("collect_throughput " + " ".join(f"{k}={v}" for k, v in r.items()), flush=True)

@@ -1,87 +1,169 @@
-"""Control steps per second of ``QuadWindEnv.step`` (one control step = 5 physics steps + PD +
-trajectory + wind + sensors), for several batch sizes, eager and compiled.
+"""Control steps per second of ``QuadWindEnv`` (one control step = 5 physics steps + PD +
+trajectory + wind + sensors + navigation + reward for every row), and what a partial reset costs.
 
-    python bench/env_throughput.py                       # the full table
+    python bench/env_throughput.py                       # the full table, 1 thread
     python bench/env_throughput.py --sizes 4096 --compile 1 --atmosphere full
 
-Prints one parseable line per configuration:
-``env_throughput N=4096 compile=True atmosphere=full control_steps_per_s=... peak_rss_mb=...``
+Each configuration runs in its own process (so each peak-memory figure is its own) and prints one
+parseable line::
+
+    env_throughput N=4096 compile=True atmosphere=full sensors=True threads=1 workers=1
+        episode_s=200 resets_per_step=0.205 control_steps_per_s=... steady_control_steps_per_s=...
+        partial_reset_ms=... partial_reset_in_steps=... peak_rss_mb=... load_1min=...
+
+``control_steps_per_s`` is what a user's rollout gets: steps through ``step_and_maybe_reset`` with
+episodes ending at the rate a batch of de-synchronised ``--episode-s`` episodes has (``N /
+(episode_s x 100 Hz)`` rows per control step; a bench run is far shorter than one episode, so rows
+are ended by marking them done, cycling through the batch). ``steady_control_steps_per_s`` is the
+same loop with no episode ending. ``partial_reset_ms`` is one ``env.reset`` of a single row
+(``"_reset"`` mask), ``partial_reset_in_steps`` the same in control steps of the steady loop.
+``--atmosphere mean`` switches the turbulence off; ``--sensors 0`` the sensor suite (the PD then
+flies the true state); neither changes anything else.
+
+``--peer crazyflow`` adds, for every size, the same measurement of crazyflow 0.4 (JAX) in the same
+run (``bench/peer_crazyflow.py``), in a virtual environment made on demand under
+``.cache/peer-crazyflow`` (``pip install crazyflow==0.4.0``; a few minutes the first time).
 """
 from __future__ import annotations
 
 import argparse
 import resource
+from pathlib import Path
 import subprocess
 import sys
 import time
 from dataclasses import replace
 
 import torch
+from machine import load_1min, machine_line
 
-from quadwind_trl.config import EnvConfig, SensorConfig, TurbulenceConfig
+from quadwind_trl.config import ControllerConfig, EnvConfig, SensorConfig, TurbulenceConfig
 from quadwind_trl.envs import QuadWindEnv, ScenarioSampler
 
+CONTROL_HZ = 100.0
+PEER_VENV = Path(__file__).resolve().parent.parent / ".cache" / "peer-crazyflow"
+PEER_REQUIREMENT = "crazyflow==0.4.0"
 
-def make_config(atmosphere: str) -> EnvConfig:
+
+def peer_python() -> Path:
+    """The peer's interpreter, installing crazyflow into its own venv on first use."""
+    python = PEER_VENV / "bin" / "python"
+    if not python.exists():
+        print(f"installing {PEER_REQUIREMENT} into {PEER_VENV} (first use)", flush=True)
+        subprocess.run([sys.executable, "-m", "venv", str(PEER_VENV)], check=True)
+        subprocess.run([str(python), "-m", "pip", "install", "-q", PEER_REQUIREMENT], check=True)
+    return python
+
+
+def make_config(atmosphere: str, sensors: bool) -> EnvConfig:
     cfg = EnvConfig()
     if atmosphere == "mean":
-        cfg = replace(cfg, turbulence=TurbulenceConfig(enabled=False), sensors=SensorConfig(enabled=False))
+        cfg = replace(cfg, turbulence=TurbulenceConfig(enabled=False))
+    if not sensors:
+        cfg = replace(cfg, sensors=SensorConfig(enabled=False), controller=replace(ControllerConfig(), feedback="truth"))
     return cfg
 
 
-def measure(n: int, compile_step: bool, atmosphere: str, seconds: float, via: str) -> float:
+def _rollout(env: QuadWindEnv, td, steps: int, resets_per_step: float) -> tuple[float, object]:
+    """Seconds for ``steps`` control steps through ``step_and_maybe_reset``, ending rows at
+    ``resets_per_step`` on average (a deterministic accumulator, one row at a time, cycling)."""
+    n = env.batch_size[0]
+    owed, row = 0.0, 0
+    start = time.perf_counter()
+    for _ in range(steps):
+        td["action"] = torch.zeros(n, 4)
+        owed += resets_per_step
+        if owed >= 1.0:
+            # rows whose episode ends on this step: marked done, then reset exactly as
+            # step_and_maybe_reset does it (step, step_mdp, maybe_reset)
+            k = int(owed)
+            ending = torch.zeros(n, 1, dtype=torch.bool)
+            ending[(row + torch.arange(k)) % n] = True
+            owed, row = owed - k, (row + k) % n
+            td = env._step_mdp(env.step(td))
+            for key in ("done", "truncated"):
+                td[key] = td[key] | ending
+            td = env.maybe_reset(td)
+        else:
+            _, td = env.step_and_maybe_reset(td)
+    return time.perf_counter() - start, td
+
+
+def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds: float, episode_s: float) -> dict:
     env = QuadWindEnv(
-        make_config(atmosphere), batch_size=[n], compile_step=compile_step, scenario_sampler=ScenarioSampler(start="pattern")
+        make_config(atmosphere, sensors), batch_size=[n], compile_step=compile_step,
+        scenario_sampler=ScenarioSampler(start="pattern"),
     )
     td = env.reset()
-    td["action"] = torch.zeros(n, 4)
-    step = (lambda t: env.step(t)) if via == "step" else (lambda t: env.step_and_maybe_reset(t)[1])
-    for _ in range(3):  # warm-up (and compilation)
-        td = step(td)
-        td["action"] = torch.zeros(n, 4)
-    steps, start = 0, time.perf_counter()
-    while time.perf_counter() - start < seconds:
-        for _ in range(10):
-            td = step(td)
-            if via == "step":
-                td = td["next"]
-            td["action"] = torch.zeros(n, 4)
-        steps += 10
-    elapsed = time.perf_counter() - start
-    return steps * n / elapsed
+    resets_per_step = n / (episode_s * CONTROL_HZ)
+    _, td = _rollout(env, td, 3, 0.0)  # warm-up (and compilation)
+    # steady: no episode ends
+    steps, elapsed = 0, 0.0
+    while elapsed < seconds:
+        dt, td = _rollout(env, td, 10, 0.0)
+        elapsed, steps = elapsed + dt, steps + 10
+    steady = steps * n / elapsed
+    # one partial reset of a single row, as step_and_maybe_reset issues it
+    mask = torch.zeros(n, dtype=torch.bool)
+    reset_times = []
+    for i in range(5):
+        mask.zero_()
+        mask[i % n] = True
+        t0 = time.perf_counter()
+        env.reset(td.empty().set("_reset", mask.clone()))
+        reset_times.append(time.perf_counter() - t0)
+    reset_s = sorted(reset_times)[len(reset_times) // 2]
+    # what a rollout gets: episodes ending at the de-synchronised batch's rate
+    steps, elapsed = 0, 0.0
+    while elapsed < seconds:
+        dt, td = _rollout(env, td, 10, resets_per_step)
+        elapsed, steps = elapsed + dt, steps + 10
+    return {
+        "resets_per_step": round(resets_per_step, 3),
+        "control_steps_per_s": round(steps * n / elapsed),
+        "steady_control_steps_per_s": round(steady),
+        "partial_reset_ms": round(1e3 * reset_s, 2),
+        "partial_reset_in_steps": round(reset_s / (n / steady), 2),
+    }
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="+", default=[1, 64, 1024, 4096, 16384])
     parser.add_argument("--compile", type=int, nargs="+", default=[0, 1])
-    parser.add_argument("--atmosphere", nargs="+", default=["mean", "full"], choices=["mean", "full"])
-    parser.add_argument("--seconds", type=float, default=5.0)
-    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
-    parser.add_argument("--via", default="step_and_maybe_reset", choices=["step", "step_and_maybe_reset"])
+    parser.add_argument("--atmosphere", nargs="+", default=["full", "mean"], choices=["mean", "full"])
+    parser.add_argument("--sensors", type=int, default=1, choices=[0, 1])
+    parser.add_argument("--seconds", type=float, default=5.0, help="timed seconds per loop")
+    parser.add_argument("--episode-s", type=float, default=200.0,
+                        help="mean episode length that sets the reset rate (horizontal flights: ~190-200 s)")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--peer", choices=["crazyflow"], default=None, help="also measure a peer simulator, same N")
     parser.add_argument("--single", action="store_true", help="measure exactly one configuration in this process")
     args = parser.parse_args()
     if args.single:
         torch.set_num_threads(args.threads)
         n, compiled, atmosphere = args.sizes[0], bool(args.compile[0]), args.atmosphere[0]
-        rate = measure(n, compiled, atmosphere, args.seconds, args.via)
+        r = measure(n, compiled, atmosphere, bool(args.sensors), args.seconds, args.episode_s)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        print(
-            f"env_throughput N={n} compile={compiled} atmosphere={atmosphere} "
-            f"threads={args.threads} control_steps_per_s={rate:.0f} peak_rss_mb={peak:.0f}",
-            flush=True,
-        )
+        fields = {"N": n, "compile": compiled, "atmosphere": atmosphere, "sensors": bool(args.sensors),
+                  "threads": args.threads, "workers": 1, "episode_s": args.episode_s, **r,
+                  "peak_rss_mb": round(peak), "load_1min": round(load_1min(), 2)}
+        print("env_throughput " + " ".join(f"{k}={v}" for k, v in fields.items()), flush=True)
         return
-    # one process per configuration, so each peak memory figure is its own
+    print(machine_line(args.threads), flush=True)
     for atmosphere in args.atmosphere:
         for compiled in args.compile:
             for n in args.sizes:
                 subprocess.run(
                     [sys.executable, __file__, "--single", "--sizes", str(n), "--compile", str(compiled),
-                     "--atmosphere", atmosphere, "--seconds", str(args.seconds), "--threads", str(args.threads),
-                     "--via", args.via],
+                     "--atmosphere", atmosphere, "--sensors", str(args.sensors), "--seconds", str(args.seconds),
+                     "--episode-s", str(args.episode_s), "--threads", str(args.threads)],
                     check=True,
                 )
+    if args.peer == "crazyflow":
+        subprocess.run([str(peer_python()), str(Path(__file__).with_name("peer_crazyflow.py")), "--sizes",
+                        *map(str, args.sizes), "--seconds", str(args.seconds), "--threads", str(args.threads)],
+                       check=True)
 
 
 if __name__ == "__main__":

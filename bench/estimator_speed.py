@@ -17,6 +17,7 @@ import argparse
 import time
 
 import torch
+from machine import load_1min, machine_line
 
 from quadwind_trl.modules.estimator_loss import EstimatorLoss
 from quadwind_trl.modules.wind_estimator import AttentionGRUEstimator, EstimatorConfig
@@ -86,19 +87,20 @@ def main() -> None:
     p.add_argument("--no-gather", action="store_true", help="train on one fixed batch (model cost only)")
     args = p.parse_args()
     torch.set_num_threads(args.threads)
+    print(machine_line(args.threads), flush=True)
     for c in args.channels:
         for comp in args.compile:
             s = bench_train(c, bool(comp), args.train_batch, args.min_time, not args.no_gather)
             print(
                 f"estimator_speed kind=train channels={c} compile={comp} threads={args.threads} batch={args.train_batch} "
-                f"gather={int(not args.no_gather)} ms_per_call={s * 1e3:.2f} windows_per_s={args.train_batch / s:.0f}",
+                f"gather={int(not args.no_gather)} ms_per_call={s * 1e3:.2f} windows_per_s={args.train_batch / s:.0f} load_1min={load_1min():.2f}",
                 flush=True,
             )
             for b in args.batches:
                 s = bench_infer(c, bool(comp), b, args.min_time)
                 print(
                     f"estimator_speed kind=infer channels={c} compile={comp} threads={args.threads} batch={b} "
-                    f"ms_per_call={s * 1e3:.3f} windows_per_s={b / s:.0f}",
+                    f"ms_per_call={s * 1e3:.3f} windows_per_s={b / s:.0f} load_1min={load_1min():.2f}",
                     flush=True,
                 )
 
