@@ -184,12 +184,18 @@ class TurbulenceConfig:
     wrap-around. A bank of ``cube_bank_size`` realisations per length scale of
     ``cube_length_scales_m`` (m) is shared by all episodes (3 MB each); an episode uses the
     nearest length scale, a realisation picked by its seed, its own rotation and offset.
-    Both layouts get the same exactly divergence-free stability anisotropy.
+    Both layouts get the same stability anisotropy, chosen by ``anisotropy``: ``"stretch"``
+    (default) is exactly divergence-free (docs/atmosphere.md 2.3); ``"local_scaling"`` scales the
+    isotropic field's components in the local mean-wind frame, which breaks divergence-freeness
+    (|div|/|grad| 0.05-0.13). It is the field every config saved before the stretch flew (the shipped
+    estimators and policies, their committed results), kept so those re-fly bit for bit;
+    :func:`config_from_dict` gives it to a saved config that names no anisotropy.
     """
 
     enabled: bool = True
     num_modes: int = 300  # paper
     layout: Literal["full", "paper_grid"] = "full"
+    anisotropy: Literal["stretch", "local_scaling"] = "stretch"
     kappa_range: tuple[float, float] = (2 * math.pi / 60.0, 800.0)  # dimensionless k L
     cube_size_m: float = 1200.0  # paper
     cube_points: int = 64  # paper
@@ -204,6 +210,8 @@ class TurbulenceConfig:
     def validate(self) -> None:
         if self.layout not in ("full", "paper_grid"):
             raise ValueError(f"TurbulenceConfig.layout={self.layout!r}; allowed: 'full', 'paper_grid'")
+        if self.anisotropy not in ("stretch", "local_scaling"):
+            raise ValueError(f"TurbulenceConfig.anisotropy={self.anisotropy!r}; allowed: 'stretch', 'local_scaling'")
         _check_range("TurbulenceConfig", "num_modes", self.num_modes, 1, 100_000)
         if not 0 < self.kappa_range[0] < self.kappa_range[1]:
             raise ValueError(f"TurbulenceConfig.kappa_range={self.kappa_range!r} must be increasing and positive")
@@ -443,6 +451,8 @@ def config_from_dict(cls, data: dict):
     tuples again; unknown keys fail loudly)."""
     if cls is SensorConfig and _is_walk_schema(data):
         return _legacy_sensors(data)
+    if cls is TurbulenceConfig and "anisotropy" not in data:
+        data = dict(data, anisotropy="local_scaling")  # saved before the divergence-free stretch
     hints = typing.get_type_hints(cls)
     unknown = set(data) - {f.name for f in fields(cls)}
     if unknown:

@@ -304,22 +304,34 @@ def test_navigation_error_is_the_unseen_part_of_the_tracking_error():
     assert (drifting.rmse_xy > res.rmse_xy).all()  # the PD follows its biased estimate off the track
 
 
-def test_legacy_walk_preset_reproduces_the_pre_gauss_markov_flight_bit_for_bit():
+# RMSEs (xy, z) of two PD episodes recorded from the code before bounded biases and the 200 Hz
+# IMU: on the locally scaled field (commit e9697ba, the shipped checkpoints' vehicle) and on the
+# divergence-free stretch (commit a8d1122)
+_LEGACY_RMSE = {
+    "local_scaling": (("0x1.86aafc0000000p-2", "0x1.4b45ac0000000p-2"), None),
+    "stretch": (("0x1.85ac5c0000000p-2", "0x1.4c48f60000000p-2"), ("0x1.abde860000000p-4", "0x1.ab45c20000000p-3")),
+}
+
+
+@pytest.mark.parametrize("anisotropy", sorted(_LEGACY_RMSE))
+def test_legacy_walk_preset_reproduces_the_pre_gauss_markov_flight_bit_for_bit(anisotropy):
     """Two horizontal PD episodes (the quick subset's rows 0 and 9: loiter and lawnmower, 8 s of
-    pattern from an airborne start), RMSEs recorded from the code before bounded biases and the
-    200 Hz IMU, on the divergence-free turbulence field (commit a8d1122, random-walk sensors): the
-    legacy preset flies them to the last bit. (On the field before it, commit e9697ba, the same
-    preset reproduced that code's 0x1.86aafc0000000p-2 / 0x1.4b45ac0000000p-2 bitwise too.)"""
+    pattern from an airborne start) flown with the legacy sensors reproduce, to the last bit, the
+    code that recorded them: with ``anisotropy="local_scaling"`` the vehicle the shipped
+    checkpoints and their committed results were made on."""
     from quadwind_trl.evaluation.tracking import fly_sweep, quick_subset
     from quadwind_trl.regimes import HORIZONTAL_SWEEP
 
     cfg = with_sensor_preset(EnvConfig(), "legacy_walk")
-    cfg = replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=8.0))
+    cfg = replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=8.0),
+                  turbulence=replace(cfg.turbulence, anisotropy=anisotropy))
     sc = quick_subset(HORIZONTAL_SWEEP, HORIZONTAL_SWEEP.scenarios())[[0, 9]]
     sc["start_step"][:] = -1
     ep = fly_sweep(QuadWindEnv(cfg, batch_size=[2]), sc)
-    assert ep["rmse_xy"].double().tolist() == [float.fromhex("0x1.85ac5c0000000p-2"), float.fromhex("0x1.4c48f60000000p-2")]
-    assert ep["rmse_z"].double().tolist() == [float.fromhex("0x1.abde860000000p-4"), float.fromhex("0x1.ab45c20000000p-3")]
+    xy, z = _LEGACY_RMSE[anisotropy]
+    assert ep["rmse_xy"].double().tolist() == [float.fromhex(v) for v in xy]
+    if z is not None:
+        assert ep["rmse_z"].double().tolist() == [float.fromhex(v) for v in z]
 
 
 @pytest.mark.parametrize("regime", ["horizontal", "vertical"])
@@ -329,6 +341,7 @@ def test_shipped_policies_load_their_config_as_the_legacy_preset(regime):
     saved = json.loads((CHECKPOINT_DIR / f"policy_{regime}.json").read_text())["env_spec"]["env_config"]
     cfg = config_from_dict(EnvConfig, saved)
     assert cfg.sensors == LEGACY_SENSORS and cfg.navigation == LEGACY_NAVIGATION
+    assert cfg.turbulence.anisotropy == "local_scaling"  # the field they were trained in
     assert with_sensor_preset(EnvConfig(), "legacy_walk") == replace(EnvConfig(), sensors=LEGACY_SENSORS,
                                                                        navigation=LEGACY_NAVIGATION)
     tampered = dict(saved, sensors=dict(saved["sensors"], gps_pos=dict(saved["sensors"]["gps_pos"], noise_std=0.1)))

@@ -191,8 +191,12 @@ class Atmosphere:
         # gust(x) = sigma_u F D R v(R^T D^-1 F^T x): the coordinate map is the inverse transpose
         # of the velocity map, so every mode's stretched wavevector stays perpendicular to its
         # stretched velocity and the applied field is exactly divergence-free (docs/atmosphere.md)
-        field_out = _matmul3(frame * ratios.unsqueeze(-2), rotation)  # F D R
-        field_in = _matmul3(rotation.transpose(-1, -2), frame.transpose(-1, -2) / ratios.unsqueeze(-1))  # R^T D^-1 F^T
+        if self.turbulence.anisotropy == "stretch":
+            field_out = _matmul3(frame * ratios.unsqueeze(-2), rotation)  # F D R
+            field_in = _matmul3(rotation.transpose(-1, -2), frame.transpose(-1, -2) / ratios.unsqueeze(-1))  # R^T D^-1 F^T
+        else:  # "local_scaling": the isotropic field, rotated into the reference-height wind frame
+            field_out = _matmul3(_rot_z(-torch.sin(base_from), -torch.cos(base_from)), rotation)
+            field_in = field_out.transpose(-1, -2)
         state = {
             "wind_speed_ref": scenario["wind_speed_ref_m_s"].to(torch.float32),
             "wind_from0": base_from,
@@ -316,13 +320,30 @@ class Atmosphere:
         z = pos[..., 2]
         mean = self.mean_wind(state, z)
         total = mean
-        if self.turbulence.enabled:
+        if self.turbulence.enabled and self.turbulence.anisotropy == "stretch":
             sigma_u = self.turbulence_sigma(state, mean, z)[..., :1]
             total = mean + sigma_u * self.unit_gust(state, pos - state["air_offset"])
+        elif self.turbulence.enabled:
+            total = mean + self._locally_scaled_gust(state, pos, mean, z)
         if self.wind.cap_applies_to == "total":
             total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
         state = dict(state, air_offset=state["air_offset"] + dt * mean)
         return mean, total, state
+
+
+    def _locally_scaled_gust(self, state: dict[str, Tensor], pos: Tensor, mean: Tensor, z: Tensor) -> Tensor:
+        """``anisotropy="local_scaling"``: the isotropic unit field's components scaled by the
+        regime's sigmas in the local mean-wind frame at ``z`` (rotate in, scale, rotate out). Not
+        divergence-free; kept, operation for operation, for configs saved before the stretch."""
+        iso = self.unit_gust(state, pos - state["air_offset"])  # isotropic: no stretch in its maps
+        sigma = self.turbulence_sigma(state, mean, z)
+        # (c, s): the unit vector the mean wind blows towards (no atan2: see _profile)
+        _, wind_from = self._profile(state, z)
+        c, s = -torch.sin(wind_from), -torch.cos(wind_from)
+        along = c * iso[..., 0] + s * iso[..., 1]
+        across = -s * iso[..., 0] + c * iso[..., 1]
+        along, across, up = sigma[..., 0] * along, sigma[..., 1] * across, sigma[..., 2] * iso[..., 2]
+        return torch.stack((c * along - s * across, s * along + c * across, up), -1)
 
 
 def _cap_horizontal(wind: Tensor, cap: float) -> Tensor:
