@@ -17,6 +17,7 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm.auto import tqdm
 
+from ..validation import validate_scenarios
 from .quad_env import QuadWindEnv
 
 NestedKey = str | tuple[str, ...]
@@ -80,6 +81,7 @@ def iter_flights(
     control step from the episode start. ``policy=None`` flies the PD baseline (zero action).
     """
     base = _base(env)
+    validate_scenarios(scenarios)
     n_env = base.batch_size[0]
     log_every = base.config.timing.log_every_control_steps
     traj = base.sim.trajectories

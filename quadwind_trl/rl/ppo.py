@@ -53,6 +53,7 @@ from torchrl.objectives.value import GAE
 
 from ..config import config_to_dict
 from ..manifest import git_commit, save_atomic, write_json
+from ..validation import load_checkpoint
 from ..envs.runner import fly
 from ..evaluation.statistics import improvement, win_rate
 from ..transforms import OBSERVATION_CHANNELS, OBSERVATION_DIM
@@ -234,7 +235,7 @@ def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dic
 
     ``payload["vecnorm"]`` is the frozen normalisation to pass to ``make_env(...,
     vecnorm_state=...)``; ``payload["ppo_config"]`` / ``payload["env_spec"]`` describe the run."""
-    payload = torch.load(path, map_location=device, weights_only=True)
+    payload = load_checkpoint(path, "policy", device)
     cfg = payload["ppo_config"]
     cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
     actor, _ = build_actor_critic(cfg)
@@ -543,6 +544,7 @@ class PPOTrainer:
     def _payload(self, actor, env) -> dict:
         return {
             "format": CHECKPOINT_FORMAT,
+            "kind": "policy",  # validation.load_checkpoint tells a policy from an estimator by it
             "policy": actor.state_dict(),
             "vecnorm": vecnorm_state_dict(env),
             "ppo_config": asdict(self.cfg),
