@@ -53,7 +53,7 @@ def main() -> None:
                         help="policy checkpoints, one per regime in the order horizontal, vertical (default: shipped)")
     parser.add_argument("--estimator", type=Path, nargs="*", default=None, help="estimator checkpoints, same order")
     parser.add_argument("--controllers", nargs="+", default=list(CONTROLLERS), choices=list(CONTROLLERS))
-    parser.add_argument("--quick", action="store_true", help="one seed and intensity per sweep, 20 s patterns")
+    parser.add_argument("--quick", action="store_true", help="one seed and intensity per sweep, 10 s patterns flown from their start")
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
     parser.add_argument("--threads", type=int, default=1)

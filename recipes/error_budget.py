@@ -33,7 +33,7 @@ def main() -> None:
     parser.add_argument("--policy", type=Path, default=None, help="policy checkpoint (default: shipped)")
     parser.add_argument("--estimator", type=Path, default=None, help="estimator checkpoint (default: shipped)")
     parser.add_argument("--sensing", nargs="+", default=list(SENSING), choices=list(SENSING))
-    parser.add_argument("--quick", action="store_true", help="one seed and intensity, 20 s patterns")
+    parser.add_argument("--quick", action="store_true", help="one seed and intensity, 10 s patterns flown from their start")
     parser.add_argument("--results", type=Path, default=None, help="default results/ (--quick: runs/quick/results)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()

@@ -25,7 +25,7 @@ from quadwind_trl.regimes import SWEEPS
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweeps", nargs="+", default=list(SWEEPS), choices=list(SWEEPS))
-    parser.add_argument("--quick", action="store_true", help="one seed, one intensity, 20 s patterns")
+    parser.add_argument("--quick", action="store_true", help="one seed, one intensity, 10 s patterns flown from their start")
     parser.add_argument("--out", type=Path, default=Path("results/pd_baseline.json"))
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--compile", action="store_true", help="torch.compile the simulator step")
@@ -35,7 +35,7 @@ def main() -> None:
     cfg = EnvConfig()
     if args.quick:
         cfg = quick_config(cfg)
-        print("--quick: horizontal patterns 20 s, vertical climbs to 40 m, one seed and intensity per sweep")
+        print("--quick: horizontal patterns 10 s, vertical climbs to 30 m, flown from the pattern start; one seed and intensity per sweep")
     report = {"command": " ".join(sys.argv), "git_commit": git_commit(), "config": config_to_dict(cfg), "sweeps": {}}
     for name in args.sweeps:
         sweep = SWEEPS[name]
