@@ -22,7 +22,7 @@ import torch
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, summarize_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
-from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 from quadwind_trl.rl.envs import load_estimator
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
@@ -76,7 +76,7 @@ def main() -> None:
         results = fly_controllers(regime, scenarios, policy_path, estimator, tuple(args.controllers), progress=True,
                                   config_override=override)
         summary = summarize_ablation(sweep, scenarios, results)
-        summary.update(command=" ".join(sys.argv), git_commit=git_commit(), policy=str(policy_path),
+        summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
                        estimator_manifest=estimator.manifest.get("metrics"), wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
         paths = draw(name, scenarios, results, summary, fig_dir)

@@ -21,7 +21,7 @@ import torch
 from quadwind_trl.config import SENSING
 from quadwind_trl.evaluation.error_budget import error_budget
 from quadwind_trl.evaluation.tracking import sweep_setup
-from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 from quadwind_trl.rl.envs import load_estimator
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
@@ -44,7 +44,7 @@ def main() -> None:
     scenarios, override = sweep_setup(SWEEPS[args.sweep], args.quick)
     start = time.perf_counter()
     budget = error_budget(regime, scenarios, policy, estimator, tuple(args.sensing), override, progress=True)
-    budget.update(sweep=args.sweep, command=" ".join(sys.argv), git_commit=git_commit(), policy=str(policy),
+    budget.update(sweep=args.sweep, command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy),
                   wall_time_s=time.perf_counter() - start)
     out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}.json"
     write_json(out, budget)

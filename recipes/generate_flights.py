@@ -13,7 +13,7 @@ directory renamed into place at the end (see ``quadwind_trl/data/generate.py``; 
 from __future__ import annotations
 
 import argparse
-import shlex
+from quadwind_trl.manifest import command_line
 import sys
 import time
 
@@ -66,7 +66,7 @@ def main() -> None:
             overwrite=args.overwrite,
             resume=args.resume,
             progress=not args.no_progress,
-            command=shlex.join([sys.executable] + sys.argv),
+            command=command_line(sys.argv),
         )
     except (FileExistsError, ValueError) as err:
         parser.error(str(err))

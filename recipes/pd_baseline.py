@@ -18,7 +18,7 @@ import torch
 from quadwind_trl.config import EnvConfig, config_to_dict
 from quadwind_trl.envs import QuadWindEnv
 from quadwind_trl.evaluation.tracking import fly_sweep, quick_config, quick_subset, tracking_tables
-from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.manifest import command_line, git_commit, write_json
 from quadwind_trl.regimes import SWEEPS
 
 
@@ -36,7 +36,7 @@ def main() -> None:
     if args.quick:
         cfg = quick_config(cfg)
         print("--quick: horizontal patterns 10 s, vertical climbs to 30 m, flown from the pattern start; one seed and intensity per sweep")
-    report = {"command": " ".join(sys.argv), "git_commit": git_commit(), "config": config_to_dict(cfg), "sweeps": {}}
+    report = {"command": command_line(sys.argv), "git_commit": git_commit(), "config": config_to_dict(cfg), "sweeps": {}}
     for name in args.sweeps:
         sweep = SWEEPS[name]
         scenarios = sweep.scenarios()

@@ -43,15 +43,17 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
                                           "--threads", "1", "--no-progress"), data[r])
               for r in data),
             *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--quick", "--out", str(est[r]),
-                                       "--log-dir", str(q / "runs"), "--no-progress"), est[r]) for r in data),
+                                       "--log-dir", str(q / "runs"), "--threads", "1", "--no-progress"), est[r]) for r in data),
             Stage("ppo-horizontal", ("ppo_horizontal.py", "--quick", "--estimator", str(est["horizontal"]), "--out", str(pol["horizontal"]),
                                      "--no-progress"), pol["horizontal"] / "policy.pt"),
             Stage("ppo-vertical", ("ppo_vertical_curriculum.py", "--quick", "--estimator", str(est["vertical"]), "--out",
                                    str(pol["vertical"]), "--no-progress"), pol["vertical"] / "policy.pt"),
-            # no separate PD-baseline stage: the ablation flies PD on the same episodes; no oracle
-            Stage("ablation", ("ablation.py", "--quick", "--controllers", "pd", "blind", "aware", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
+            # no separate PD-baseline stage (the ablation flies PD on the same episodes), no oracle
+            # controller and no out-of-distribution sweep: a toy run shows the pipeline, not results
+            Stage("ablation", ("ablation.py", "--quick", "--sweeps", "horizontal", "vertical", "--controllers", "pd", "blind",
+                               "aware", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
                                "--estimator", str(est["horizontal"]), str(est["vertical"]), "--results", str(q / "results"),
-                               "--figures", str(q / "figures")), q / "results" / "ablation_ood.json"),
+                               "--figures", str(q / "figures")), q / "results" / "ablation_vertical.json"),
             Stage("report", ("report.py", "--toy", "--results", str(q / "results"), "--sections", str(q / "sections"),
                              "--out", str(q / "results.md"), "--runs", str(q)),
                   q / "results.md"),

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
+from quadwind_trl.manifest import command_line
 import sys
 import time
 from pathlib import Path
@@ -71,7 +71,7 @@ def main() -> None:
     try:
         result = train_estimator(
             ed, cfg, out, resume=args.resume, overwrite=args.overwrite, log_dir=args.log_dir,
-            exp_name=args.exp_name, progress=not args.no_progress, command=shlex.join([sys.executable] + sys.argv),
+            exp_name=args.exp_name, progress=not args.no_progress, command=command_line(sys.argv),
         )  # fmt: skip
     except (FileExistsError, FileNotFoundError, ValueError) as err:
         p.error(str(err))

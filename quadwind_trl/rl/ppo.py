@@ -34,7 +34,6 @@ start-up that no estimator parameter is among them.
 from __future__ import annotations
 
 import math
-import shlex
 import sys
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -52,7 +51,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from ..config import config_to_dict
-from ..manifest import git_commit, save_atomic, write_json
+from ..manifest import command_line, git_commit, save_atomic, write_json
 from ..validation import load_checkpoint
 from ..envs.runner import fly
 from ..evaluation.statistics import improvement, win_rate
@@ -292,7 +291,7 @@ class PPOTrainer:
         self.curriculum = curriculum
         self.logger_kind = logger
         self.progress = progress
-        self.command = command if command is not None else shlex.join([sys.executable] + sys.argv)
+        self.command = command if command is not None else command_line(sys.argv)
         self.factory = EnvFactory(env_spec, bundle=estimator_bundle)
         self.on_iteration = on_iteration
 
