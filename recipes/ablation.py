@@ -81,7 +81,7 @@ def main() -> None:
         write_json(results_dir / f"ablation_{name}.json", summary)
         paths = draw(name, scenarios, results, summary, fig_dir)
         aware = summary["rmse_xy"]["aware"]
-        print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD (xy): "
+        print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD, xy RMSE reduction: "
               f"{aware['improvement']:.1f} % (95 % CI {aware['ci_low']:.1f}-{aware['ci_high']:.1f}), "
               f"wins {aware['wins']}/{aware['n']}; figures: {', '.join(str(p) for p in paths)}")
 

@@ -52,7 +52,7 @@ def main() -> None:
         aware = budget["aware_vs_pd"][mode]["rmse_xy"]
         print(f"{mode:>10}: PD xy full {cells['full']['rmse_xy']:.3f}, mean-only {cells['mean_only']['rmse_xy']:.3f}, "
               f"still {cells['still']['rmse_xy']:.3f} m, nav error {cells['full']['nav_rmse_xy']:.3f} m; "
-              f"z full {cells['full']['rmse_z']:.3f} m; wind-aware vs PD xy "
+              f"z full {cells['full']['rmse_z']:.3f} m; wind-aware vs PD, xy RMSE reduction "
               f"{aware['improvement']:.1f} % (wins {aware['wins']}/{aware['n']})")
     print(f"wrote {out} ({budget['wall_time_s']:.0f} s)")
 

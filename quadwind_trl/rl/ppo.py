@@ -537,7 +537,7 @@ class PPOTrainer:
         result.evals.append(metrics)
         if self.progress:
             print(f"[eval @ {state['frames']} frames] rmse {metrics['rmse']:.3f} m vs PD {metrics['pd_rmse']:.3f} m "
-                  f"({metrics['improvement_vs_pd']:+.1f} %), win rate {metrics['win_rate']:.2f}, "
+                  f"(RMSE reduction {metrics['improvement_vs_pd']:+.1f} %, positive = better), win rate {metrics['win_rate']:.2f}, "
                   f"crashed {metrics['crashed']}, {metrics['eval_s']:.0f} s", flush=True)
 
     def _payload(self, actor, env) -> dict:
