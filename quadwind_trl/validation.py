@@ -155,7 +155,7 @@ def _allowed(name: str) -> str:
 # --- configs -------------------------------------------------------------------------------------
 
 # "ClassName.field" -> allowed range. Fields not listed get the type and finiteness checks, and
-# fields named as magnitudes (``MAGNITUDE_HINTS``) must not be negative.
+# fields named as magnitudes (``_is_magnitude``) must not be negative.
 CONFIG_RANGES: dict[str, Range] = {
     "VehicleConfig.arm_length_m": Range(0.01, 5.0, "m, hub to rotor axis"),
     "VehicleConfig.thrust_coeff": Range(1e-9, 1e-2, "N / (rad/s)^2, positive"),
@@ -173,8 +173,14 @@ CONFIG_RANGES: dict[str, Range] = {
     "WindProfileConfig.max_horizontal_wind_m_s": Range(0.0, 100.0, "m/s"),
     "RewardConfig.crash_tilt_deg": Range(1.0, 180.0, "deg"),
 }
-# a field whose name contains one of these is a magnitude (a duration, a rate, a spread, a size)
-MAGNITUDE_HINTS = ("_s", "_hz", "_kg", "std", "_m2", "duration", "radius", "length", "legs", "spacing", "speed")
+# a field whose name ends in one of these units, or names one of these quantities, is a magnitude
+# (a duration, a rate, a mass, an area, a spread, a size) and is never negative
+MAGNITUDE_UNITS = ("_s", "_hz", "_kg", "_m2", "_kg_m2", "_kg_m3")
+MAGNITUDE_WORDS = ("std", "duration", "radius", "length", "legs", "spacing", "speed")
+
+
+def _is_magnitude(name: str) -> bool:
+    return name.endswith(MAGNITUDE_UNITS) or any(w in name for w in MAGNITUDE_WORDS)
 
 
 def validate_config(cfg, owner: str | None = None) -> None:
@@ -225,7 +231,7 @@ def _check_value(label: str, key: str, value, hint, name: str) -> None:
         r = CONFIG_RANGES.get(key)
         if r is not None and not r.low <= value <= r.high:
             raise ValueError(f"{label}={value!r} is outside the allowed range {r.describe()}")
-        if r is None and value < 0 and any(h in name for h in MAGNITUDE_HINTS):
+        if r is None and value < 0 and _is_magnitude(name):
             raise ValueError(f"{label}={value!r} must be >= 0 (a magnitude)")
 
 
