@@ -6,13 +6,14 @@ controller, the batch size or its row in the batch (DESIGN.md, invariant 2). It 
 """
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict
 
-from .counter_rng import hash_bits, hash_uniform
 from ..validation import as_field_tensor, trajectory_id, validate_ranges, validate_scenarios
+from .counter_rng import hash_bits, hash_uniform
 from .trajectories import HORIZONTAL, TRAJECTORY_IDS
 
 # name -> (dtype, default)
@@ -41,8 +42,12 @@ def make_scenarios(batch: int, device: torch.device | str | None = None, *, chec
     allowed range or names. ``check=False`` skips the value checks (one host sync) for batches
     made from already checked values, such as the samplers' draws within checked ranges.
     """
-    if isinstance(batch, bool) or not isinstance(batch, int) or batch < 1:
-        raise ValueError(f"batch={batch!r}: expected a positive integer (the number of episodes)")
+    try:
+        batch = operator.index(batch)  # ints of any kind (Python, numpy, 0-d integer tensors), not floats
+    except TypeError:
+        raise TypeError(f"batch={batch!r}: expected a positive integer (the number of episodes)") from None
+    if batch < 1:
+        raise ValueError(f"batch={batch}: expected a positive integer (the number of episodes)")
     unknown = set(fields) - set(SCENARIO_FIELDS)
     if unknown:
         raise KeyError(f"unknown scenario fields {sorted(unknown)}; allowed: {sorted(SCENARIO_FIELDS)}")
