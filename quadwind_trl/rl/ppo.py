@@ -320,7 +320,10 @@ class PPOTrainer:
         if self.logger_kind == "tensorboard":
             from torchrl.record import TensorboardLogger
 
-            return TensorboardLogger(exp_name="ppo", log_dir=log_dir)
+            try:
+                return TensorboardLogger(exp_name="ppo", log_dir=log_dir)
+            except ImportError as err:  # torch.utils.tensorboard needs the tensorboard package
+                raise ImportError(f"logger='tensorboard' needs TensorBoard: pip install -e '.[tensorboard]' ({err})") from None
         if self.logger_kind != "csv":
             raise ValueError(f"logger={self.logger_kind!r}; allowed: 'csv', 'tensorboard'")
         return CSVLogger(exp_name="ppo", log_dir=log_dir)
