@@ -140,7 +140,7 @@ GENERATE_MICRO = """
 import sys
 from tests.test_data import micro_spec
 from quadwind_trl.data.generate import generate_dataset
-generate_dataset(sys.argv[1], micro_spec(), max_batch=1, progress=False, resume=sys.argv[2] == "resume")
+generate_dataset(sys.argv[1], micro_spec(), max_batch=2, progress=False, resume=sys.argv[2] == "resume")
 print("complete")
 """
 
