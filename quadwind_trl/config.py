@@ -396,6 +396,9 @@ class EnvConfig:
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
 
     def validate(self) -> "EnvConfig":
+        from .validation import validate_config  # the generic type / finiteness / range checks
+
+        validate_config(self)
         for f in fields(self):
             sub = getattr(self, f.name)
             if hasattr(sub, "validate"):

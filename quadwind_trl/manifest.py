@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import subprocess
 from pathlib import Path
 
@@ -37,3 +38,21 @@ def write_json(path: str | os.PathLike, payload: dict) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(payload, indent=2, sort_keys=True, default=str) + "\n")
     tmp.replace(path)
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def repo_relative(path: str | os.PathLike) -> str:
+    """``path`` relative to the repository root when it lies inside it (what a manifest records:
+    the machine's own directories mean nothing on another), else unchanged."""
+    p = Path(path)
+    try:
+        return str(p.resolve().relative_to(ROOT)) if p.is_absolute() else str(p)
+    except ValueError:
+        return str(p)
+
+
+def command_line(argv: list[str]) -> str:
+    """The command a manifest records: ``python`` and ``argv`` with repository paths relative."""
+    return shlex.join(["python"] + [repo_relative(a) if os.path.isabs(a) else a for a in argv])

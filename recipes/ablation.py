@@ -22,7 +22,7 @@ import torch
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, summarize_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
-from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 from quadwind_trl.rl.envs import load_estimator
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
@@ -53,7 +53,7 @@ def main() -> None:
                         help="policy checkpoints, one per regime in the order horizontal, vertical (default: shipped)")
     parser.add_argument("--estimator", type=Path, nargs="*", default=None, help="estimator checkpoints, same order")
     parser.add_argument("--controllers", nargs="+", default=list(CONTROLLERS), choices=list(CONTROLLERS))
-    parser.add_argument("--quick", action="store_true", help="one seed and intensity per sweep, 20 s patterns")
+    parser.add_argument("--quick", action="store_true", help="one seed and intensity per sweep, 10 s patterns flown from their start")
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
     parser.add_argument("--threads", type=int, default=1)
@@ -76,12 +76,12 @@ def main() -> None:
         results = fly_controllers(regime, scenarios, policy_path, estimator, tuple(args.controllers), progress=True,
                                   config_override=override)
         summary = summarize_ablation(sweep, scenarios, results)
-        summary.update(command=" ".join(sys.argv), git_commit=git_commit(), policy=str(policy_path),
+        summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
                        estimator_manifest=estimator.manifest.get("metrics"), wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
         paths = draw(name, scenarios, results, summary, fig_dir)
         aware = summary["rmse_xy"]["aware"]
-        print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD (xy): "
+        print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD, xy RMSE reduction: "
               f"{aware['improvement']:.1f} % (95 % CI {aware['ci_low']:.1f}-{aware['ci_high']:.1f}), "
               f"wins {aware['wins']}/{aware['n']}; figures: {', '.join(str(p) for p in paths)}")
 

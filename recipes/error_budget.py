@@ -25,7 +25,7 @@ import torch
 from quadwind_trl.config import SENSING, SENSOR_PRESETS, EnvConfig, with_sensor_preset
 from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle
 from quadwind_trl.evaluation.tracking import sweep_setup
-from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 from quadwind_trl.rl.envs import load_estimator
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
@@ -41,7 +41,7 @@ def main() -> None:
                         help="sensing preset of the vehicle flown (policy: the policy's own saved vehicle)")
     parser.add_argument("--winds", nargs="+", default=list(WINDS), choices=list(WINDS))
     parser.add_argument("--pd-only", action="store_true", help="skip the wind-aware policy's flights")
-    parser.add_argument("--quick", action="store_true", help="one seed and intensity, 20 s patterns")
+    parser.add_argument("--quick", action="store_true", help="one seed and intensity, 10 s patterns flown from their start")
     parser.add_argument("--results", type=Path, default=None, help="default results/ (--quick: runs/quick/results)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
@@ -56,8 +56,8 @@ def main() -> None:
     start = time.perf_counter()
     budget = error_budget(regime, scenarios, policy, estimator, tuple(args.sensing), override, progress=True,
                           winds=tuple(args.winds), with_policy=not args.pd_only)
-    budget.update(sweep=args.sweep, sensors=args.sensors, command=" ".join(sys.argv), git_commit=git_commit(),
-                  policy=str(policy), wall_time_s=time.perf_counter() - start)
+    budget.update(sweep=args.sweep, sensors=args.sensors, command=command_line(sys.argv), git_commit=git_commit(),
+                  policy=repo_relative(policy), wall_time_s=time.perf_counter() - start)
     suffix = "" if args.sensors == "rtk" else f"_{args.sensors}"
     out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}{suffix}.json"
     write_json(out, budget)

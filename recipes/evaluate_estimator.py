@@ -26,7 +26,7 @@ import json
 import math
 import os
 import re
-import shlex
+from quadwind_trl.manifest import command_line, repo_relative
 import sys
 import time
 from pathlib import Path
@@ -287,8 +287,8 @@ def main() -> None:
         print(f"WARNING: {ckpt} was trained on another dataset ({bundle.manifest['dataset'].get('path')}); its test split may overlap training", flush=True)
     names = list(TRAJECTORIES)
     deployed = bundle.ema_tau_s
-    results: dict = {"regime": regime, "checkpoint": str(ckpt), "data": ed.info, "stride": args.stride,
-                     "command": shlex.join([sys.executable] + sys.argv), "deployed_tau_s": deployed}  # fmt: skip
+    results: dict = {"regime": regime, "checkpoint": repo_relative(ckpt), "data": ed.info, "stride": args.stride,
+                     "command": command_line(sys.argv), "deployed_tau_s": deployed}  # fmt: skip
 
     # EMA sweep on validation flights
     val = sequences(bundle, ed, split_flights(ed.windows, "val"), args.stride, args.batch, "validation")

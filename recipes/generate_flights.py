@@ -7,12 +7,13 @@ x the regime's trajectory library).
 
 The dataset goes to ``--out`` (default ``data/flights_<regime>[_quick]``) through a temporary
 directory renamed into place at the end (see ``quadwind_trl/data/generate.py``; format in
-``docs/features.md``). Same arguments => byte-identical dataset.
+``docs/features.md``), committing each chunk of flights as it goes: an interrupted run
+(Ctrl-C, SIGTERM) continues with ``--resume``. Same arguments => byte-identical dataset.
 """
 from __future__ import annotations
 
 import argparse
-import shlex
+from quadwind_trl.manifest import command_line
 import sys
 import time
 
@@ -36,6 +37,9 @@ def main() -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing dataset at --out")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue an interrupted run (same arguments) from its last finished chunk")
+    parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args()
     if args.threads is not None:
         torch.set_num_threads(args.threads)
@@ -60,11 +64,14 @@ def main() -> None:
             device=args.device,
             compile_step=args.compile,
             overwrite=args.overwrite,
-            progress=True,
-            command=shlex.join([sys.executable] + sys.argv),
+            resume=args.resume,
+            progress=not args.no_progress,
+            command=command_line(sys.argv),
         )
-    except FileExistsError as err:
+    except (FileExistsError, ValueError) as err:
         parser.error(str(err))
+    except KeyboardInterrupt:  # SIGINT or SIGTERM: the library has said what it kept
+        raise SystemExit(130) from None
     elapsed = time.perf_counter() - start
     data, manifest = load_dataset(path)
     print(describe(data, manifest))

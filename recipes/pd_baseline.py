@@ -20,7 +20,7 @@ import torch
 from quadwind_trl.config import SENSOR_PRESETS, EnvConfig, config_to_dict, with_sensor_preset
 from quadwind_trl.envs import QuadWindEnv
 from quadwind_trl.evaluation.tracking import fly_sweep, quick_config, quick_subset, tracking_tables
-from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.manifest import command_line, git_commit, write_json
 from quadwind_trl.regimes import SWEEPS
 
 
@@ -28,7 +28,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweeps", nargs="+", default=list(SWEEPS), choices=list(SWEEPS))
     parser.add_argument("--sensors", default="rtk", choices=list(SENSOR_PRESETS), help="sensing preset")
-    parser.add_argument("--quick", action="store_true", help="one seed, one intensity, 20 s patterns")
+    parser.add_argument("--quick", action="store_true", help="one seed, one intensity, 10 s patterns flown from their start")
     parser.add_argument("--out", type=Path, default=Path("results/pd_baseline.json"))
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--compile", action="store_true", help="torch.compile the simulator step")
@@ -38,8 +38,8 @@ def main() -> None:
     cfg = with_sensor_preset(EnvConfig(), args.sensors)
     if args.quick:
         cfg = quick_config(cfg)
-        print("--quick: horizontal patterns 20 s, vertical climbs to 40 m, one seed and intensity per sweep")
-    report = {"command": " ".join(sys.argv), "git_commit": git_commit(), "sensors": args.sensors,
+        print("--quick: horizontal patterns 10 s, vertical climbs to 30 m, flown from the pattern start; one seed and intensity per sweep")
+    report = {"command": command_line(sys.argv), "git_commit": git_commit(), "sensors": args.sensors,
               "config": config_to_dict(cfg), "sweeps": {}}
     for name in args.sweeps:
         sweep = SWEEPS[name]

@@ -33,6 +33,7 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, default=Path("runs"),
                         help="the PPO runs (RUNS/ppo_<regime>): their manifests, else the shipped policies', and "
                              "their logs, which redraw figures/learning_curves.png beside --out")
+    parser.add_argument("--toy", action="store_true", help="the --quick run's page: says so first, no paper columns")
     args = parser.parse_args()
     manifests = {}
     for regime in ("horizontal", "vertical"):
@@ -43,7 +44,7 @@ def main() -> None:
     runs = {r: args.runs / f"ppo_{r}" for r in manifests if (args.runs / f"ppo_{r}" / "logs").exists()}
     if runs:
         learning_curves(runs, args.out.parent / "figures" / "learning_curves.png")
-    text = build_report(args.results, args.sections, PREAMBLE, manifests)
+    text = build_report(args.results, args.sections, PREAMBLE, manifests, toy=args.toy)
     tmp = args.out.with_name(args.out.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(args.out)

@@ -1,7 +1,7 @@
 """Every stage of the paper, end to end: datasets -> estimators -> PPO policies -> PD baseline
 -> paired ablation -> error budget (full runs only) -> report.
 
-    python recipes/reproduce.py --quick     # toy scale, a few minutes on 2 cores (scripts/quickstart.sh)
+    python recipes/reproduce.py --quick     # toy scale, about 4 minutes on 2 idle cores (scripts/quickstart.sh)
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
 
 Each stage is one of the recipes in this folder, run as its own process; a stage whose output
@@ -13,6 +13,7 @@ last checkpoint when interrupted, so a full reproduction can span several sessio
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import subprocess
 import sys
@@ -38,21 +39,23 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
         est = {r: q / f"estimator_{r}.pt" for r in ("horizontal", "vertical")}
         pol = {r: q / f"ppo_{r}" for r in ("horizontal", "vertical")}
         out = [
-            *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--quick", "--cases", "10", "--out", str(data[r])), data[r])
+            *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--quick", "--cases", "4", "--out", str(data[r]),
+                                          "--threads", "1", "--no-progress"), data[r])
               for r in data),
             *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--quick", "--out", str(est[r]),
-                                       "--log-dir", str(q / "runs"), "--no-progress"), est[r]) for r in data),
+                                       "--log-dir", str(q / "runs"), "--threads", "1", "--no-progress"), est[r]) for r in data),
             Stage("ppo-horizontal", ("ppo_horizontal.py", "--quick", "--estimator", str(est["horizontal"]), "--out", str(pol["horizontal"]),
                                      "--no-progress"), pol["horizontal"] / "policy.pt"),
             Stage("ppo-vertical", ("ppo_vertical_curriculum.py", "--quick", "--estimator", str(est["vertical"]), "--out",
                                    str(pol["vertical"]), "--no-progress"), pol["vertical"] / "policy.pt"),
-            Stage("pd-baseline", ("pd_baseline.py", "--quick", "--out", str(q / "results" / "pd_baseline.json")),
-                  q / "results" / "pd_baseline.json"),
-            Stage("ablation", ("ablation.py", "--quick", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
+            # no separate PD-baseline stage (the ablation flies PD on the same episodes), no oracle
+            # controller and no out-of-distribution sweep: a toy run shows the pipeline, not results
+            Stage("ablation", ("ablation.py", "--quick", "--sweeps", "horizontal", "vertical", "--controllers", "pd", "blind",
+                               "aware", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
                                "--estimator", str(est["horizontal"]), str(est["vertical"]), "--results", str(q / "results"),
-                               "--figures", str(q / "figures")), q / "results" / "ablation_ood.json"),
-            Stage("report", ("report.py", "--results", str(q / "results"), "--sections", str(q / "sections"), "--out", str(q / "results.md"),
-                             "--runs", str(q)),
+                               "--figures", str(q / "figures")), q / "results" / "ablation_vertical.json"),
+            Stage("report", ("report.py", "--toy", "--results", str(q / "results"), "--sections", str(q / "sections"),
+                             "--out", str(q / "results.md"), "--runs", str(q)),
                   q / "results.md"),
         ]
         return out
@@ -60,9 +63,9 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
     unseen = {r: ROOT / "data" / f"flights_{r}_unseen" for r in data}
     unseen_seed = {"horizontal": "1002", "vertical": "2002"}
     return [
-        *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--compile", "--threads", "1"), data[r]) for r in data),
+        *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--compile", "--threads", "1", "--resume"), data[r]) for r in data),
         *(Stage(f"data-{r}-unseen", ("generate_flights.py", "--regime", r, "--cases", "150", "--seed", unseen_seed[r],
-                                     "--out", str(unseen[r]), "--compile", "--threads", "1"), unseen[r]) for r in data),
+                                     "--out", str(unseen[r]), "--compile", "--threads", "1", "--resume"), unseen[r]) for r in data),
         *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--threads", "1", "--resume",
                                    "--no-progress"), CHECKPOINTS / f"estimator_{r}.pt") for r in data),
         *(Stage(f"estimator-{r}-evaluation", ("evaluate_estimator.py", "--regime", r, "--data", str(data[r]), "--unseen-data",
@@ -121,7 +124,43 @@ def main() -> None:
         if args.full and stage.name.startswith("ppo-"):
             ship_policy(stage.name.split("-")[1])
         print(f"[{stage.name}] finished in {time.perf_counter() - t0:.0f} s", flush=True)
-    print(f"all stages finished in {time.perf_counter() - start:.0f} s")
+    elapsed = time.perf_counter() - start
+    print(f"all stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min)")
+    if args.quick:
+        print(toy_summary(args.out.resolve()))
+
+
+def toy_summary(q: Path) -> str:
+    """What the toy run made, its key numbers and the files to open."""
+    lines = ["", "Toy run summary (numbers at this scale say nothing about the method; docs/results.md has the paper-scale ones):"]
+    for regime in ("horizontal", "vertical"):
+        est = q / f"estimator_{regime}.json"
+        if est.exists():
+            m = json.loads(est.read_text()).get("metrics", {})
+            if "per_window_vector_rmse" in m:
+                lines.append(f"  {regime} wind estimator: per-window wind RMSE {m['per_window_vector_rmse']:.2f} m/s")
+    for sweep in ("horizontal", "vertical", "ood"):
+        path = q / "results" / f"ablation_{sweep}.json"
+        if path.exists():
+            block = json.loads(path.read_text())["rmse_xy"]
+            a, d = block["aware"], block["distribution"]
+            lines.append(f"  {sweep} sweep, {a['n']} episodes: PD xy RMSE {d['pd']['mean']:.2f} m, wind-aware RL "
+                         f"{d['aware']['mean']:.2f} m, RMSE reduction {a['improvement']:+.1f} % (positive = RL better)")
+    lines.append("Open:")
+    lines.append(f"  {_shown(q / 'results.md')}   the toy report")
+    figures = sorted((q / "figures").glob("*.png"))
+    if figures:
+        lines.append(f"  {_shown(q / 'figures')}/   {len(figures)} figures ({', '.join(f.name for f in figures[:4])}{', ...' if len(figures) > 4 else ''})")
+    lines.append(f"  {_shown(q)}/ppo_*/logs   PPO training logs (CSV)")
+    return "\n".join(lines)
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the repository when inside it (what a user can paste from the root)."""
+    try:
+        return str(path.relative_to(ROOT))
+    except ValueError:
+        return str(path)
 
 
 if __name__ == "__main__":

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
+from quadwind_trl.manifest import command_line
 import sys
 import time
 from pathlib import Path
@@ -71,7 +71,7 @@ def main() -> None:
     try:
         result = train_estimator(
             ed, cfg, out, resume=args.resume, overwrite=args.overwrite, log_dir=args.log_dir,
-            exp_name=args.exp_name, progress=not args.no_progress, command=shlex.join([sys.executable] + sys.argv),
+            exp_name=args.exp_name, progress=not args.no_progress, command=command_line(sys.argv),
         )  # fmt: skip
     except (FileExistsError, FileNotFoundError, ValueError) as err:
         p.error(str(err))
@@ -81,6 +81,10 @@ def main() -> None:
         f"direction MAE {result.best_val['direction_mae_deg']:.2f} deg"
     )
     if "per_window_vector_rmse" in m:
+        if args.quick:
+            print("toy scale (--quick): a handful of short flights and epochs. The skill scores compare the estimator with "
+                  "predicting each flight's mean wind from a climatology of the same few cases, so at this scale they "
+                  "are meaningless (large negative values are expected); the paper-scale ones are in docs/estimator.md.")
         print(
             f"test: per-window vector RMSE {m['per_window_vector_rmse']:.3f} m/s, per-flight {m['per_flight_vector_rmse']:.3f} m/s, "
             f"component-mean {m['component_mean_rmse']:.3f} m/s, direction MAE {m['direction_mae_deg']:.2f} deg, "

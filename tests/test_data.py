@@ -3,6 +3,11 @@ tables, the balanced sampler and the training-split statistics. All tiny."""
 from __future__ import annotations
 
 import filecmp
+import os
+import signal
+import subprocess
+import sys
+import time
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -31,6 +36,8 @@ from quadwind_trl.data import (
 from quadwind_trl.data.windows import sample_stats, t_safety_s
 from quadwind_trl.envs import RegimeRanges
 from quadwind_trl.envs.trajectories import TRAJECTORY_IDS, VERTICAL
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def tiny_spec(seed: int = 5) -> GenerationSpec:
@@ -89,28 +96,76 @@ class Interrupt(Exception):
     pass
 
 
-def test_interrupted_generation_never_loads(tmp_path, monkeypatch):
+def test_interrupted_generation_never_loads_and_resumes(tmp_path):
     out = tmp_path / "cut"
 
     def stop(i):
         raise Interrupt
 
-    # a Python-level interruption cleans its temporary directory up
+    # interrupted after its first chunk: nothing loads, the committed chunk stays for a resume
     with pytest.raises(Interrupt):
-        generate_dataset(out, micro_spec(), max_batch=2, progress=False, after_chunk=stop)
-    assert not out.exists() and list(tmp_path.iterdir()) == []
-    with pytest.raises(FileNotFoundError, match="not a complete dataset"):
-        load_dataset(out)
-    # a hard kill (no cleanup runs) leaves only a hidden partial directory without the marker
-    monkeypatch.setattr(generate_mod.shutil, "rmtree", lambda *a, **k: None)
-    with pytest.raises(Interrupt):
-        generate_dataset(out, micro_spec(), max_batch=2, progress=False, after_chunk=stop)
-    leftovers = list(tmp_path.iterdir())
-    assert not out.exists() and len(leftovers) == 1 and leftovers[0].name.startswith(".cut.partial-")
-    assert (leftovers[0] / "data").is_dir() and not is_complete(leftovers[0])
-    for path in (out, leftovers[0]):
+        generate_dataset(out, micro_spec(), max_batch=3, progress=False, after_chunk=stop)
+    partial = generate_mod.partial_dir(out.resolve())
+    assert not out.exists() and [p.name for p in tmp_path.iterdir()] == [partial.name]
+    assert not is_complete(partial)
+    for path in (out, partial):
         with pytest.raises(FileNotFoundError):
             load_dataset(path)
+    flown = json.loads((partial / generate_mod.PROGRESS_FILE).read_text())["flown"]
+    assert len(flown) == 3  # 5 flights at batch 3: chunks of 3 and 2
+    # a resume flies only what is missing and gives the same bytes as an uninterrupted run
+    chunks = []
+    generate_dataset(out, micro_spec(), max_batch=3, progress=False, resume=True, after_chunk=chunks.append)
+    assert len(chunks) == 1  # the first chunk was not flown again
+    whole = generate_dataset(tmp_path / "whole", micro_spec(), max_batch=3, progress=False)
+    files = data_files(whole)
+    _, mismatch, errors = filecmp.cmpfiles(out, whole, [str(f) for f in files], shallow=False)
+    assert mismatch == [] and errors == [] and files == data_files(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut", "whole"]
+
+
+def test_interruption_before_a_chunk_removes_the_partial_and_other_specs_do_not_resume(tmp_path):
+    out = tmp_path / "cut"
+    with pytest.raises(Interrupt):
+        generate_dataset(out, micro_spec(), max_batch=4, progress=False, after_chunk=lambda i: (_ for _ in ()).throw(Interrupt)
+                         if i == 0 else None)
+    with pytest.raises(ValueError, match="another spec or batch"):
+        generate_dataset(out, micro_spec(), max_batch=5, progress=False, resume=True)
+    # without --resume a stale partial run is replaced
+    generate_dataset(out, micro_spec(), max_batch=5, progress=False)
+    assert is_complete(out) and list(tmp_path.iterdir()) == [out]
+
+
+GENERATE_MICRO = """
+import sys
+from tests.test_data import micro_spec
+from quadwind_trl.data.generate import generate_dataset
+generate_dataset(sys.argv[1], micro_spec(), max_batch=2, progress=False, resume=sys.argv[2] == "resume")
+print("complete")
+"""
+
+
+def test_sigterm_keeps_committed_chunks_and_resume_finishes(tmp_path):
+    """A real process, killed with SIGTERM once a chunk has been written, resumes."""
+    out = tmp_path / "flights"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-c", GENERATE_MICRO, str(out)]
+    proc = subprocess.Popen(cmd + ["fresh"], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    progress = generate_mod.partial_dir(out) / generate_mod.PROGRESS_FILE
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if progress.exists() and json.loads(progress.read_text())["flown"]:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, f"finished before it could be interrupted: {proc.communicate()}"
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0 and not out.exists()
+    assert "Interrupted: signal SIGTERM" in err and "--resume" in err and progress.exists()
+    done = subprocess.run(cmd + ["resume"], cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "resuming flights" in done.stdout and "complete" in done.stdout and is_complete(out)
+    assert [p.name for p in tmp_path.iterdir()] == ["flights"]
 
 
 def test_existing_dataset_is_not_replaced_without_overwrite(tiny):

@@ -15,9 +15,13 @@ A dataset is one directory::
       provenance.json     command, git commit, wall time, host threads (differs between runs)
       COMPLETE            written last: a dataset without it is never loaded
 
-Generation writes into ``.<name>.partial-<pid>`` beside ``DIR`` and renames it into place only
-when everything, ``COMPLETE`` included, is written, so an interrupted run never leaves anything
-that :func:`load_dataset` accepts. Same arguments => byte-identical ``data/`` and
+Generation writes into ``.<name>.partial`` beside ``DIR`` and renames it into place only when
+everything, ``COMPLETE`` included, is written, so an interrupted run never leaves anything that
+:func:`load_dataset` accepts. Chunks (one env batch of flights each) are committed one by one:
+after a chunk's rows are written, ``progress.json`` in the partial directory records them
+(atomically). Interrupted (SIGINT, SIGTERM or an error) after at least one chunk, the partial
+directory stays for ``resume=True`` (``--resume``) to continue from the last committed chunk;
+interrupted before, it is removed. A run without ``resume`` starts over. Same arguments => byte-identical ``data/`` and
 ``manifest.json`` (the physics is a function of the scenarios; the scenarios of the seeds).
 """
 from __future__ import annotations
@@ -25,7 +29,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
+import sys
+import threading
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Literal
@@ -33,7 +41,7 @@ from typing import Callable, Literal
 import torch
 from tensordict import TensorDict
 
-from ..manifest import git_commit
+from ..manifest import git_commit, write_json
 from ..config import EnvConfig, TrajectoryConfig, config_to_dict
 from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
@@ -143,6 +151,31 @@ def _balanced_batch(num_flights: int, max_batch: int) -> int:
     return -(-num_flights // chunks)
 
 
+PROGRESS_FILE = "progress.json"
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM during generation, raised like Ctrl-C so the same cleanup runs."""
+
+
+@contextmanager
+def _terminate_as_interrupt():
+    """SIGTERM raises :class:`Interrupted` (SIGINT already raises ``KeyboardInterrupt``) while
+    generating, so the partial directory is kept for a resume or removed, never left half-known."""
+    if threading.current_thread() is not threading.main_thread():  # signals reach the main thread only
+        yield
+        return
+
+    def handler(signum, frame):
+        raise Interrupted(f"signal {signal.Signals(signum).name}")
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def generate_dataset(
     out: str | os.PathLike,
     spec: GenerationSpec,
@@ -151,13 +184,16 @@ def generate_dataset(
     device: str | torch.device = "cpu",
     compile_step: bool = False,
     overwrite: bool = False,
+    resume: bool = False,
     progress: bool = True,
     command: str | None = None,
     after_chunk: Callable[[int], None] | None = None,
 ) -> Path:
     """Fly ``spec``'s scenarios with the PD baseline and write the dataset to ``out``.
 
-    ``after_chunk(i)`` is called after chunk ``i`` is written (tests use it to interrupt).
+    ``resume``: continue an interrupted run of the same spec and batch from its last committed
+    chunk (a partial directory of another spec is an error; none: start fresh).
+    ``after_chunk(i)`` is called after chunk ``i`` is committed (tests use it to interrupt).
     Returns the final path. Refuses to replace an existing dataset unless ``overwrite``.
     """
     if max_batch < 1:
@@ -166,9 +202,18 @@ def generate_dataset(
     if out.exists() and not overwrite:
         raise FileExistsError(f"{out} exists; pass overwrite=True (--overwrite) to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
+    tmp = partial_dir(out)
+    with _terminate_as_interrupt():
+        return _generate(out, tmp, spec, max_batch, device, compile_step, resume, progress, command, after_chunk)
+
+
+def partial_dir(out: Path) -> Path:
+    """Where an unfinished dataset for ``out`` is written."""
+    return out.parent / f".{out.name}.partial"
+
+
+def _generate(out: Path, tmp: Path, spec: GenerationSpec, max_batch: int, device, compile_step: bool, resume: bool,
+              progress: bool, command: str | None, after_chunk: Callable[[int], None] | None) -> Path:
     t0 = time.perf_counter()
     scenarios = spec.scenarios()
     n = scenarios.batch_size[0]
@@ -182,16 +227,28 @@ def generate_dataset(
     if bool((scenarios["start_step"] != 0).any()):
         raise ValueError("dataset flights start on the ground: scenario start_step must be 0")
 
+    # what a resumed run must share with the interrupted one (the chunks depend on the batch)
+    fingerprint = {"format_version": FORMAT_VERSION, "regime": spec.regime, "cases": spec.cases, "seed": spec.seed,
+                   "config": config_to_dict(spec.config), "ranges": asdict(spec.regime_ranges), "env_batch": batch}
+    flown = _resume_point(tmp, fingerprint, n) if resume else None
+    if flown is None and tmp.exists():
+        shutil.rmtree(tmp)  # a stale partial run without --resume: start over
     try:
-        tmp.mkdir(parents=True)
-        data = _record_template(n, t_len).memmap_like(tmp / "data", num_threads=0)
-        data["scenario"].update_(scenarios.select(*SCENARIO_FIELDS))
-        data["case_id"].copy_(scenarios["case_id"])
-        data["traj_id"].copy_(scenarios["traj_id"])
-        data["pattern_start_step"].copy_(pattern_start)
-        data["end_step"].copy_(end_step)
+        if flown is None:
+            tmp.mkdir(parents=True)
+            data = _record_template(n, t_len).memmap_like(tmp / "data", num_threads=0)
+            data["scenario"].update_(scenarios.select(*SCENARIO_FIELDS))
+            data["case_id"].copy_(scenarios["case_id"])
+            data["traj_id"].copy_(scenarios["traj_id"])
+            data["pattern_start_step"].copy_(pattern_start)
+            data["end_step"].copy_(end_step)
+            flown = torch.zeros(n, dtype=torch.bool)
+            _commit(tmp, fingerprint, flown)
+        else:
+            data = TensorDict.load_memmap(tmp / "data")
+            print(f"resuming {out.name}: {int(flown.sum())}/{n} flights already flown", flush=True)
         rec = data["record"]
-        flights = iter_flights(env, scenarios, policy=None, log_keys=LOG_KEYS, progress=progress)
+        flights = iter_flights(env, scenarios, policy=None, log_keys=LOG_KEYS, progress=progress, skip=flown)
         for i, part in enumerate(flights):
             idx = part.index
             log = part.log
@@ -222,6 +279,8 @@ def generate_dataset(
             data["rmse_xy"][idx] = part.rmse_xy
             data["rmse_z"][idx] = part.rmse_z
             data["crashed"][idx] = part.crashed
+            flown[idx] = True
+            _commit(tmp, fingerprint, flown)
             if after_chunk is not None:
                 after_chunk(i)
 
@@ -252,6 +311,7 @@ def generate_dataset(
             "created_unix": int(time.time()),
         }
         (tmp / "provenance.json").write_text(json.dumps(provenance, indent=1, sort_keys=True) + "\n")
+        (tmp / PROGRESS_FILE).unlink()
         del data, rec
         _fsync_tree(tmp)
         (tmp / COMPLETE_MARKER).write_text("ok\n")
@@ -262,10 +322,33 @@ def generate_dataset(
             shutil.rmtree(old, ignore_errors=True)
         else:
             os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException as err:
+        done = int(flown.sum()) if flown is not None else 0
+        if done and (tmp / PROGRESS_FILE).exists():
+            print(f"\ninterrupted ({type(err).__name__}) after {done}/{n} flights; {tmp} is kept: rerun with "
+                  "--resume (resume=True) to continue, or delete it", file=sys.stderr, flush=True)
+        else:
+            shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out
+
+
+def _commit(tmp: Path, fingerprint: dict, flown: torch.Tensor) -> None:
+    """Record the flights whose rows are written (the chunk's memmap writes precede this)."""
+    write_json(tmp / PROGRESS_FILE, {"fingerprint": fingerprint, "flown": flown.nonzero().squeeze(-1).tolist()})
+
+
+def _resume_point(tmp: Path, fingerprint: dict, n: int) -> torch.Tensor | None:
+    """The flights an interrupted run of the same spec committed (None: nothing to resume)."""
+    path = tmp / PROGRESS_FILE
+    if not path.is_file():
+        return None
+    saved = json.loads(path.read_text())
+    if saved["fingerprint"] != json.loads(json.dumps(fingerprint, default=str)):
+        raise ValueError(f"{tmp} holds an interrupted run of another spec or batch; delete it or rerun with its arguments")
+    flown = torch.zeros(n, dtype=torch.bool)
+    flown[torch.tensor(saved["flown"], dtype=torch.int64)] = True
+    return flown
 
 
 def _fsync_tree(root: Path) -> None:

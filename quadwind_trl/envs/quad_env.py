@@ -10,6 +10,7 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
+from ..validation import check_action, trajectory_id, validate_scenarios
 from .scenarios import SCENARIO_FIELDS, RegimeRanges, make_scenarios, random_scenarios
 from .sensors import NUM_SENSOR_CHANNELS
 from .simulator import QuadSimulator, merge_rows
@@ -28,6 +29,12 @@ class ScenarioSampler:
     ranges: RegimeRanges = RegimeRanges()
     trajectories: tuple[str, ...] = HORIZONTAL
     start: Literal["ground", "pattern"] = "ground"
+
+    def __post_init__(self):
+        for name in self.trajectories:
+            trajectory_id(name)
+        if self.start not in ("ground", "pattern"):
+            raise ValueError(f"ScenarioSampler.start={self.start!r}; allowed: 'ground', 'pattern'")
 
     def __call__(self, key: torch.Tensor, counter: torch.Tensor) -> TensorDict:
         ids = torch.tensor([TRAJECTORY_IDS[t] for t in self.trajectories], device=key.device)
@@ -145,6 +152,10 @@ class QuadWindEnv(EnvBase):
         mask = torch.ones(n, dtype=torch.bool, device=self.device) if mask is None else mask.reshape(n)
         if scenario is None:
             scenario = self.scenario_sampler(self._row_keys, self._episode_count)
+        else:  # a user's spec: checked once per reset (the sampler's draws are valid by construction)
+            if tuple(scenario.batch_size) != (n,):
+                raise ValueError(f"scenario has batch size {list(scenario.batch_size)}, expected [{n}] (one row per sub-env)")
+            validate_scenarios(scenario)
         self._episode_count = self._episode_count + mask.to(torch.int64)
         self.state = self.sim.reset(self.state, scenario, mask)
         out = self._observation(self.state)
@@ -152,7 +163,8 @@ class QuadWindEnv(EnvBase):
         return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get("action")
+        action = tensordict.get("action", None)
+        check_action(action, self.batch_size[0], 4)
         state = self._sim_step(self.state, action)
         reward, steps = state["reward"], torch.ones_like(state["reward"])
         # a held action: rows that end inside the hold stay frozen at their last state
@@ -211,5 +223,5 @@ class QuadWindEnv(EnvBase):
     def scenario(self) -> TensorDict:
         """The scenarios of the episodes now running (a copy)."""
         return make_scenarios(
-            self.batch_size[0], device=self.device, **{k: self.state[f"scenario.{k}"] for k in SCENARIO_FIELDS}
+            self.batch_size[0], device=self.device, check=False, **{k: self.state[f"scenario.{k}"] for k in SCENARIO_FIELDS}
         )

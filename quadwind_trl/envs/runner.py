@@ -17,9 +17,11 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm.auto import tqdm
 
+from ..validation import validate_scenarios
 from .quad_env import QuadWindEnv
 
 NestedKey = str | tuple[str, ...]
+AUTO_PROGRESS_DELAY_S = 3.0
 
 DEFAULT_LOG_KEYS: tuple[NestedKey, ...] = (
     "meas",
@@ -70,7 +72,8 @@ def iter_flights(
     scenarios: TensorDictBase,
     policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
     log_keys: Sequence[NestedKey] = DEFAULT_LOG_KEYS,
-    progress: bool = False,
+    progress: bool | None = None,
+    skip: Tensor | None = None,
 ) -> Iterator[FlightResults]:
     """Fly ``scenarios`` (batch ``[M]``) in chunks of the env's batch size, longest first.
 
@@ -78,8 +81,13 @@ def iter_flights(
     ``hold_control_steps``-th when the env holds actions) after the pattern starts (for horizontal
     flights: after the climb) up to the end of the episode; the flight record holds every 10th
     control step from the episode start. ``policy=None`` flies the PD baseline (zero action).
+    ``progress``: a tqdm bar (``None``, the default: shown once the flights have taken
+    ``AUTO_PROGRESS_DELAY_S``; ``True`` at once; ``False`` never).
+    ``skip`` (bool ``[M]``): flights already flown; a chunk of only those is not flown again (the
+    chunks depend only on the scenarios and the batch size, so a resumed run meets the same ones).
     """
     base = _base(env)
+    validate_scenarios(scenarios)
     n_env = base.batch_size[0]
     log_every = base.config.timing.log_every_control_steps
     traj = base.sim.trajectories
@@ -90,8 +98,13 @@ def iter_flights(
     planned = (end_step - start).cpu()
     order = torch.argsort(planned, descending=True, stable=True)
     chunks = order.split(n_env)
-    bar = tqdm(total=int(planned.sum()), unit="step", unit_scale=True, disable=not progress, desc="flights")
+    # progress=None: a bar only once the work has taken a few seconds (quick calls stay quiet)
+    bar = tqdm(total=int(planned.sum()), unit="step", unit_scale=True, disable=progress is False, desc="flights",
+               delay=0.0 if progress else AUTO_PROGRESS_DELAY_S)
     for chunk in chunks:
+        if skip is not None and bool(skip[chunk].all()):
+            bar.update(int(planned[chunk].sum()))
+            continue
         rows = torch.cat((chunk, chunk[-1:].expand(n_env - chunk.numel()))) if chunk.numel() < n_env else chunk
         yield _fly_chunk(env, base, scenarios[rows.to(scenarios.device)], policy, log_keys, int(planned[chunk].max()), log_every, chunk)
         bar.update(int(planned[chunk].sum()))
@@ -103,7 +116,7 @@ def fly(
     scenarios: TensorDictBase,
     policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
     log_keys: Sequence[NestedKey] = DEFAULT_LOG_KEYS,
-    progress: bool = False,
+    progress: bool | None = None,
 ) -> FlightResults:
     """All flights of :func:`iter_flights`, in the order of ``scenarios``; records are padded to
     the longest flight (``log["valid"]`` marks real samples)."""

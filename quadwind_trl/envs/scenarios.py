@@ -6,11 +6,13 @@ controller, the batch size or its row in the batch (DESIGN.md, invariant 2). It 
 """
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict
 
+from ..validation import as_field_tensor, trajectory_id, validate_ranges, validate_scenarios
 from .counter_rng import hash_bits, hash_uniform
 from .trajectories import HORIZONTAL, TRAJECTORY_IDS
 
@@ -32,24 +34,32 @@ SCENARIO_FIELDS: dict[str, tuple[torch.dtype, float | int]] = {
 STABILITY_NAMES = ("neutral", "stable", "convective")
 
 
-def make_scenarios(batch: int, device: torch.device | str | None = None, **fields) -> TensorDict:
+def make_scenarios(batch: int, device: torch.device | str | None = None, *, check: bool = True, **fields) -> TensorDict:
     """A scenario batch with defaults for every field not given (scalars broadcast).
 
-    ``traj_id`` may also be given by name (a string, or a sequence of strings).
+    ``traj_id`` may also be given by name (a string, or a sequence of strings). Every field is
+    checked (``quadwind_trl.validation``): a bad value fails here, naming the field and the
+    allowed range or names. ``check=False`` skips the value checks (one host sync) for batches
+    made from already checked values, such as the samplers' draws within checked ranges.
     """
+    try:
+        batch = operator.index(batch)  # ints of any kind (Python, numpy, 0-d integer tensors), not floats
+    except TypeError:
+        raise TypeError(f"batch={batch!r}: expected a positive integer (the number of episodes)") from None
+    if batch < 1:
+        raise ValueError(f"batch={batch}: expected a positive integer (the number of episodes)")
     unknown = set(fields) - set(SCENARIO_FIELDS)
     if unknown:
         raise KeyError(f"unknown scenario fields {sorted(unknown)}; allowed: {sorted(SCENARIO_FIELDS)}")
     traj = fields.get("traj_id")
     if isinstance(traj, str):
-        fields["traj_id"] = TRAJECTORY_IDS[traj]
-    elif isinstance(traj, (list, tuple)) and traj and isinstance(traj[0], str):
-        fields["traj_id"] = [TRAJECTORY_IDS[t] for t in traj]
-    out = {}
-    for name, (dtype, default) in SCENARIO_FIELDS.items():
-        value = torch.as_tensor(fields.get(name, default), dtype=dtype, device=device)
-        out[name] = value.expand(batch).clone() if value.ndim == 0 else value.reshape(batch)
-    return TensorDict(out, batch_size=[batch], device=device)
+        fields["traj_id"] = trajectory_id(traj)
+    elif isinstance(traj, (list, tuple)) and any(isinstance(t, str) for t in traj):
+        fields["traj_id"] = [trajectory_id(t) if isinstance(t, str) else t for t in traj]
+    out = {name: as_field_tensor(name, fields.get(name, default), dtype, batch, device)
+           for name, (dtype, default) in SCENARIO_FIELDS.items()}
+    td = TensorDict(out, batch_size=[batch], device=device)
+    return validate_scenarios(td) if check else td
 
 
 @dataclass(frozen=True)
@@ -70,6 +80,9 @@ class RegimeRanges:
     top_altitude_m: float = 600.0  # paper (vertical)
     wind_ceiling_m_s: float = 20.0  # paper: the mean wind at altitude stays below this
     reference_height_m: float = 10.0
+
+    def __post_init__(self):
+        validate_ranges(self)
 
     @property
     def dims(self) -> int:
@@ -111,6 +124,7 @@ def _regimes_from_unit(u: torch.Tensor, ranges: RegimeRanges, **fields) -> Tenso
     return make_scenarios(
         n,
         device=u.device,
+        check=False,  # every value lies within ``ranges``, checked when they were made
         wind_speed_ref_m_s=lower + u[:, 0] * (upper - lower).clamp_min(0.0),
         wind_dir_deg=scale(1, ranges.wind_dir_deg),
         turb_intensity=scale(2, ranges.intensity),

@@ -13,6 +13,11 @@ def _by_number(table: dict) -> list[tuple[str, dict]]:
     return sorted(table.items(), key=lambda kv: float(kv[0]))
 
 
+def wall_time(seconds: float) -> str:
+    """Seconds under two minutes (a toy run is never "0 min"), minutes above."""
+    return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.0f} min"
+
+
 def _ratio(ours: float, theirs: float) -> str:
     return f"{ours / theirs:.2f}" if theirs else "-"
 
@@ -195,12 +200,12 @@ def training_section(manifests: dict[str, dict]) -> str:
     lines = ["## PPO training runs", "",
              "Each run's periodic evaluation flies a fixed set of held-out sweep episodes deterministically, paired with PD",
              "(`improvement` = 1 - mean RL xy RMSE / mean PD xy RMSE). Frames are policy decisions at 10 Hz (docs/rl.md).", "",
-             "| regime | command | decisions | wall time (min) | evaluations: frames -> xy improvement vs PD (win rate) |",
+             "| regime | command | decisions | wall time | evaluations: frames -> xy RMSE reduction vs PD (win rate) |",
              "|---|---|---|---|---|"]
     for regime, m in manifests.items():
         evals = "; ".join(f"{int(e['frames']):,} -> {e['improvement_rmse_xy_pct']:+.1f} % ({e['win_rate']:.2f})"
                           for e in m.get("evals", []))
-        lines.append(f"| {regime} | `python recipes/{m['command'].split('recipes/', 1)[-1]}` | {m['frames']:,} | {m['wall_time_s'] / 60:.0f} | {evals} |")
+        lines.append(f"| {regime} | `python recipes/{m['command'].split('recipes/', 1)[-1]}` | {m['frames']:,} | {wall_time(m['wall_time_s'])} | {evals} |")
     lines += ["", "![learning curves](figures/learning_curves.png)", ""]
     return "\n".join(lines)
 
@@ -243,8 +248,51 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None) -> str:
-    """The whole results page: the preamble, then every section whose inputs exist."""
+TOY_PREAMBLE = """# Toy run: not the paper's results
+
+`python recipes/reproduce.py --quick` ran every stage at toy scale (a few wind cases, flights of
+seconds, 1,024 PPO decisions), to show the pipeline works end to end on your machine. Its numbers
+say nothing about the method: the estimators and policies are barely trained, and each table
+counts only the episodes flown here. The paper-scale results are in `docs/results.md` of the
+repository (`python recipes/reproduce.py --full` remakes them, in hours).
+"""
+
+
+def toy_tracking_section(pd: dict | None, ablations: dict[str, dict], figures: list[Path]) -> str:
+    """The toy run's tracking numbers, with the episode counts it flew and no paper columns."""
+    lines = ["## Tracking (toy scale)", "",
+             "RMSE reduction = 1 - mean RL / mean PD (positive: RL tracks better), paired bootstrap 95 % interval.", "",
+             "| sweep | episodes | PD xy RMSE (m) | wind-aware RL xy RMSE (m) | xy RMSE reduction (95 % CI) | wins |",
+             "|---|---|---|---|---|---|"]
+    for name, result in ablations.items():
+        block = result["rmse_xy"]
+        d, a = block["distribution"], block["aware"]
+        lines.append(f"| {name} | {a['n']} | {d['pd']['mean']:.3f} | {d['aware']['mean']:.3f} | "
+                     f"{a['improvement']:.1f} % ({a['ci_low']:.1f} to {a['ci_high']:.1f}) | {a['wins']}/{a['n']} |")
+    if pd is not None and not ablations:
+        for name, sweep in pd["sweeps"].items():
+            a = sweep["tables"]["rmse_xy"]["all"]
+            lines.append(f"| {name} | {a.get('n', '-')} | {a['mean']:.3f} | - | - | - |")
+    lines.append("")
+    lines += [f"- [{fig.stem}](figures/{fig.name})" for fig in figures]
+    return "\n".join(lines + [""])
+
+
+def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None,
+                 toy: bool = False) -> str:
+    """The whole results page: the preamble, then every section whose inputs exist. ``toy``: the
+    ``--quick`` run's page, which says so in its first line and shows only what it flew (no paper
+    columns, ratios or the paper's episode counts)."""
+    if toy:
+        pd_file = results_dir / "pd_baseline.json"
+        ablations = {name: json.loads((results_dir / f"ablation_{name}.json").read_text())
+                     for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
+        parts = [TOY_PREAMBLE.rstrip(), "",
+                 toy_tracking_section(json.loads(pd_file.read_text()) if pd_file.exists() else None, ablations,
+                                      sorted((results_dir.parent / "figures").glob("*.png")))]
+        if policy_manifests:
+            parts.append(training_section(policy_manifests))
+        return "\n".join(parts) + "\n"
     parts = [preamble.rstrip(), ""]
     pd_file = results_dir / "pd_baseline.json"
     if pd_file.exists():

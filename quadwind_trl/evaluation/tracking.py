@@ -53,19 +53,21 @@ QUICK_ALTITUDE_M = 20.0
 
 
 def quick_config(cfg: EnvConfig) -> EnvConfig:
-    """``cfg`` with the short flights of the smoke runs: 20 s patterns, vertical climbs to 40 m."""
-    return replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=20.0, vertical_top_m=40.0))
+    """``cfg`` with the short flights of the smoke runs: 10 s patterns, vertical climbs to 30 m."""
+    return replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=10.0, vertical_top_m=30.0))
 
 
 def quick_subset(sweep: EvalSweep, scenarios: TensorDictBase) -> TensorDictBase:
     """A small, still factorial, smoke subset: one seed, the middle intensity, the weakest and
-    strongest wind levels, every trajectory; fixed-altitude patterns flown at 20 m (short climb)."""
+    strongest wind levels, every trajectory; fixed-altitude patterns flown at 20 m, every flight
+    started airborne at its pattern (no climb to fly: a smoke run's seconds go to the pattern)."""
     mid = sweep.intensities[len(sweep.intensities) // 2]
     speeds = scenarios["wind_speed_ref_m_s"]
     keep = (scenarios["seed_index"] == 0) & ((scenarios["turb_intensity"] - mid).abs() < 1e-6)
     keep &= (speeds == min(sweep.wind_speeds)) | (speeds == max(sweep.wind_speeds))
     out = scenarios[keep].clone()
     out["altitude_m"] = torch.where(out["altitude_m"] < sweep.ranges.top_altitude_m, QUICK_ALTITUDE_M, out["altitude_m"])
+    out["start_step"] = torch.full_like(out["start_step"], -1)
     return out
 
 

@@ -14,6 +14,8 @@ from pathlib import Path
 import torch
 from torch import Tensor, nn
 
+from ..validation import load_checkpoint
+
 
 @dataclass(frozen=True)
 class EstimatorConfig:
@@ -104,6 +106,7 @@ class EstimatorBundle:
         """Write ``path`` (weights and statistics) and ``path.json`` (the manifest) atomically."""
         path = Path(path)
         payload = {
+            "kind": "estimator",  # validation.load_checkpoint tells an estimator from a policy by it
             "config": asdict(self.model.cfg),
             "state_dict": self.model.state_dict(),
             "schema": self.schema,
@@ -127,7 +130,7 @@ class EstimatorBundle:
         cls, path: str | Path, expect_channels: tuple[str, ...] | None = None, device: torch.device | str = "cpu"
     ) -> "EstimatorBundle":
         path = Path(path)
-        payload = torch.load(path, map_location=device, weights_only=True)
+        payload = load_checkpoint(path, "estimator", device)
         channels = tuple(payload["channels"])
         if expect_channels is not None and tuple(expect_channels) != channels:
             missing = [c for c in expect_channels if c not in channels]

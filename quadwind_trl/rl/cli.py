@@ -129,6 +129,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
           f"({result.wall_time_s:.0f} s in total) -> {out / 'policy.pt'}")
     if m:
         print(f"last evaluation: rmse {m['rmse']:.3f} m vs PD {m['pd_rmse']:.3f} m "
-              f"({m['improvement_vs_pd']:+.1f} %; xy {m['improvement_rmse_xy_pct']:+.1f} %, z {m['improvement_rmse_z_pct']:+.1f} %), "
+              f"(RMSE reduction {m['improvement_vs_pd']:+.1f} %; xy {m['improvement_rmse_xy_pct']:+.1f} %, "
+              f"z {m['improvement_rmse_z_pct']:+.1f} %; positive = better than PD), "
               f"win rate {m['win_rate']:.2f}, crashed {m['crashed']}")
     return manifest

@@ -34,7 +34,6 @@ start-up that no estimator parameter is among them.
 from __future__ import annotations
 
 import math
-import shlex
 import sys
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -52,7 +51,8 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from ..config import config_to_dict
-from ..manifest import git_commit, save_atomic, write_json
+from ..manifest import command_line, git_commit, save_atomic, write_json
+from ..validation import load_checkpoint
 from ..envs.runner import fly
 from ..evaluation.statistics import improvement, win_rate
 from ..transforms import OBSERVATION_CHANNELS, OBSERVATION_DIM
@@ -234,7 +234,7 @@ def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dic
 
     ``payload["vecnorm"]`` is the frozen normalisation to pass to ``make_env(...,
     vecnorm_state=...)``; ``payload["ppo_config"]`` / ``payload["env_spec"]`` describe the run."""
-    payload = torch.load(path, map_location=device, weights_only=True)
+    payload = load_checkpoint(path, "policy", device)
     cfg = payload["ppo_config"]
     cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
     actor, _ = build_actor_critic(cfg)
@@ -291,7 +291,7 @@ class PPOTrainer:
         self.curriculum = curriculum
         self.logger_kind = logger
         self.progress = progress
-        self.command = command if command is not None else shlex.join([sys.executable] + sys.argv)
+        self.command = command if command is not None else command_line(sys.argv)
         self.factory = EnvFactory(env_spec, bundle=estimator_bundle)
         self.on_iteration = on_iteration
 
@@ -320,7 +320,10 @@ class PPOTrainer:
         if self.logger_kind == "tensorboard":
             from torchrl.record import TensorboardLogger
 
-            return TensorboardLogger(exp_name="ppo", log_dir=log_dir)
+            try:
+                return TensorboardLogger(exp_name="ppo", log_dir=log_dir)
+            except ImportError as err:  # torch.utils.tensorboard needs the tensorboard package
+                raise ImportError(f"logger='tensorboard' needs TensorBoard: pip install -e '.[tensorboard]' ({err})") from None
         if self.logger_kind != "csv":
             raise ValueError(f"logger={self.logger_kind!r}; allowed: 'csv', 'tensorboard'")
         return CSVLogger(exp_name="ppo", log_dir=log_dir)
@@ -537,12 +540,13 @@ class PPOTrainer:
         result.evals.append(metrics)
         if self.progress:
             print(f"[eval @ {state['frames']} frames] rmse {metrics['rmse']:.3f} m vs PD {metrics['pd_rmse']:.3f} m "
-                  f"({metrics['improvement_vs_pd']:+.1f} %), win rate {metrics['win_rate']:.2f}, "
+                  f"(RMSE reduction {metrics['improvement_vs_pd']:+.1f} %, positive = better), win rate {metrics['win_rate']:.2f}, "
                   f"crashed {metrics['crashed']}, {metrics['eval_s']:.0f} s", flush=True)
 
     def _payload(self, actor, env) -> dict:
         return {
             "format": CHECKPOINT_FORMAT,
+            "kind": "policy",  # validation.load_checkpoint tells a policy from an estimator by it
             "policy": actor.state_dict(),
             "vecnorm": vecnorm_state_dict(env),
             "ppo_config": asdict(self.cfg),

@@ -42,7 +42,7 @@ from ..data.features import make_extractor
 from ..data.generate import load_dataset
 from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
 from ..evaluation.estimation import estimation_metrics
-from ..manifest import git_commit, save_atomic
+from ..manifest import git_commit, repo_relative, save_atomic
 from ..modules.estimator_loss import EstimatorLoss, EstimatorLossConfig
 from ..modules.wind_estimator import AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
 
@@ -172,7 +172,7 @@ def load_estimator_data(
                 "generate more wind cases (--cases)"
             )
     info = {
-        "path": str(path.resolve()),
+        "path": repo_relative(path),
         "manifest_sha256": file_sha256(path / "manifest.json"),
         "regime": manifest["regime"],
         "cases": manifest["cases"],

@@ -1,0 +1,152 @@
+"""Gymnasium entry points over the batched simulator, for Stable-Baselines3 and other gym users.
+
+    import gymnasium as gym
+    import quadwind_trl.gym  # registers the ids
+
+    env = gym.make("QuadWind-Horizontal-v0")                            # one quadrotor: gymnasium.Env
+    envs = gym.make_vec("QuadWind-Vertical-v0", num_envs=64)            # one batched simulator
+
+Both wrap exactly the TorchRL stack of :func:`quadwind_trl.rl.envs.make_env` (estimator
+transform, the paper's 23-dim observation, normalisation, clipping), so an observation here is
+the observation the shipped policies and the TorchRL PPO see; the action is the residual wrench
+in ``[-1, 1]^4`` (``0`` flies the PD baseline). One step is one policy decision (0.1 s of flight).
+
+The normalisation is frozen: by default at the shipped policy's statistics for the regime (what a
+gym agent needs: fixed inputs, and gymnasium's determinism checks), or at ``vecnorm_state``.
+The vector env resets finished sub-envs in the same step (``AutoresetMode.SAME_STEP``, as
+TorchRL's ``step_and_maybe_reset``): the last observation of the finished episode is in
+``infos["final_obs"]``.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
+from tensordict import TensorDictBase
+
+from .modules.wind_estimator import CHECKPOINT_DIR
+from .rl.envs import Regime, WindInput, load_estimator, make_env
+from .transforms import OBSERVATION_DIM
+from .validation import check_action, load_checkpoint
+
+ENV_IDS = {"horizontal": "QuadWind-Horizontal-v0", "vertical": "QuadWind-Vertical-v0"}
+ACTION_DIM = 4
+
+
+def shipped_vecnorm_state(regime: Regime) -> dict:
+    """The observation statistics of the shipped policy for ``regime``."""
+    return load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["vecnorm"]
+
+
+class _BatchedStack:
+    """The TorchRL stack both gym classes drive: numpy in, numpy out, no autograd."""
+
+    def __init__(self, regime: Regime, num_envs: int, wind_input: WindInput, estimator: str | None,
+                 vecnorm_state: dict | None, obs_clip: float, seed: int, env_kwargs: dict[str, Any]):
+        bundle = None if wind_input == "truth" else load_estimator(regime, estimator)
+        state = vecnorm_state if vecnorm_state is not None else shipped_vecnorm_state(regime)
+        self.env = make_env(regime, bundle, num_envs, wind_input, seed=seed, obs_clip=obs_clip,
+                            vecnorm_state=state, **env_kwargs)
+        self.num_envs = num_envs
+        self.td: TensorDictBase | None = None
+
+    def reset(self, seed: int | None, scenario: TensorDictBase | None) -> np.ndarray:
+        if seed is not None:
+            self.env.set_seed(seed)
+        self.td = self.env.reset(**({"scenario": scenario} if scenario is not None else {}))
+        return self._obs(self.td)
+
+    @torch.no_grad()
+    def step(self, action: np.ndarray) -> tuple[TensorDictBase, TensorDictBase]:
+        """One decision for every sub-env, ``action`` ``[num_envs, 4]`` (the env checks the shape):
+        ``(transition, next root)``, finished rows already reset."""
+        action = torch.as_tensor(np.asarray(action, dtype=np.float32))
+        check_action(action, self.num_envs, ACTION_DIM)  # before the tensordict's own batch check
+        self.td.set("action", action)
+        transition, self.td = self.env.step_and_maybe_reset(self.td)
+        return transition, self.td
+
+    @staticmethod
+    def _obs(td: TensorDictBase) -> np.ndarray:
+        return td.get("observation").numpy().astype(np.float32, copy=True)
+
+
+def _spaces(obs_clip: float, num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
+    shape = (OBSERVATION_DIM,) if num_envs is None else (num_envs, OBSERVATION_DIM)
+    ashape = (ACTION_DIM,) if num_envs is None else (num_envs, ACTION_DIM)
+    return (spaces.Box(-obs_clip, obs_clip, shape, np.float32), spaces.Box(-1.0, 1.0, ashape, np.float32))
+
+
+class QuadWindVectorEnv(gymnasium.vector.VectorEnv):
+    """``num_envs`` quadrotors in one batched simulator (no process per env)."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, regime: Regime = "horizontal", num_envs: int = 8, *, wind_input: WindInput = "estimate",
+                 estimator: str | None = None, vecnorm_state: dict | None = None, obs_clip: float = 10.0,
+                 seed: int = 0, **env_kwargs):
+        self.stack = _BatchedStack(regime, num_envs, wind_input, estimator, vecnorm_state, obs_clip, seed, env_kwargs)
+        self.num_envs = num_envs
+        self.single_observation_space, self.single_action_space = _spaces(obs_clip)
+        self.observation_space, self.action_space = _spaces(obs_clip, num_envs)
+        self.regime = regime
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """``options={"scenario": make_scenarios(num_envs, ...)}`` replays given episodes."""
+        super().reset(seed=seed)
+        return self.stack.reset(seed, (options or {}).get("scenario")), {}
+
+    def step(self, actions):
+        transition, root = self.stack.step(actions)
+        nxt = transition.get("next")
+        terminated = nxt.get("terminated").reshape(-1).numpy().copy()
+        truncated = nxt.get("truncated").reshape(-1).numpy().copy()
+        infos: dict[str, Any] = {}
+        done = terminated | truncated
+        if done.any():
+            infos["final_obs"] = np.where(done[:, None], _BatchedStack._obs(nxt), 0.0).astype(np.float32)
+            infos["_final_obs"] = done.copy()
+        reward = nxt.get("reward").reshape(-1).numpy().astype(np.float64)
+        return _BatchedStack._obs(root), reward, terminated, truncated, infos
+
+
+class QuadWindEnv(gymnasium.Env):
+    """One quadrotor as a ``gymnasium.Env`` (a batch of one of the same simulator)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, regime: Regime = "horizontal", *, wind_input: WindInput = "estimate", estimator: str | None = None,
+                 vecnorm_state: dict | None = None, obs_clip: float = 10.0, seed: int = 0, **env_kwargs):
+        self.stack = _BatchedStack(regime, 1, wind_input, estimator, vecnorm_state, obs_clip, seed, env_kwargs)
+        self.observation_space, self.action_space = _spaces(obs_clip)
+        self.regime = regime
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """``options={"scenario": make_scenarios(1, ...)}`` replays a given episode."""
+        super().reset(seed=seed)
+        return self.stack.reset(seed, (options or {}).get("scenario"))[0], {}
+
+    def step(self, action):
+        transition, _ = self.stack.step(np.asarray(action)[None])
+        # the episode's own last observation (the stack has already started the next one)
+        nxt = transition.get("next")
+        obs = _BatchedStack._obs(nxt)[0]
+        return obs, float(nxt.get("reward")), bool(nxt.get("terminated")), bool(nxt.get("truncated")), {}
+
+
+def _register() -> None:
+    for regime, env_id in ENV_IDS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(
+                id=env_id,
+                entry_point="quadwind_trl.gym:QuadWindEnv",
+                vector_entry_point="quadwind_trl.gym:QuadWindVectorEnv",
+                kwargs={"regime": regime},
+            )
+
+
+_register()

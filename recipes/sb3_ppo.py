@@ -1,0 +1,63 @@
+"""Train Stable-Baselines3's PPO (the paper's trainer) on the gymnasium adapter.
+
+    pip install -e '.[sb3]'
+    python recipes/sb3_ppo.py                          # 4,096 decisions on short flights (minutes)
+    python recipes/sb3_ppo.py --total-timesteps 3000000 --full-flights --out runs/sb3_horizontal
+
+The env is ``gym.make("QuadWind-Horizontal-v0")`` (or ``-Vertical-``): the same simulator,
+estimator transform, observation and action as the TorchRL recipes (``quadwind_trl/gym.py``),
+its normalisation frozen at the shipped policy's statistics. SB3's defaults are the paper's PPO
+settings except ``n_steps``, which is smaller here so a short run makes several updates.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import gymnasium as gym
+import torch
+
+import quadwind_trl.gym  # noqa: F401  (registers the env ids)
+from quadwind_trl.config import TrajectoryConfig
+from quadwind_trl.gym import ENV_IDS
+from quadwind_trl.rl.envs import regime_config
+
+
+def short_flights(regime: str) -> dict:
+    """make_env keywords for flights of seconds, started at the pattern (a smoke run)."""
+    traj = replace(TrajectoryConfig(), horizontal_duration_s=10.0, vertical_top_m=15.0, vertical_hold_s=1.0)
+    return {"config": replace(regime_config(regime), trajectories=traj), "start": "pattern"}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--regime", default="horizontal", choices=list(ENV_IDS))
+    parser.add_argument("--total-timesteps", type=int, default=4096, help="policy decisions (0.1 s of flight each)")
+    parser.add_argument("--n-steps", type=int, default=512, help="decisions per PPO update (paper: 2048 per env)")
+    parser.add_argument("--full-flights", action="store_true", help="the regime's full-length flights from the ground")
+    parser.add_argument("--out", type=Path, default=Path("runs/sb3_ppo"), help="where the SB3 model is saved")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    try:
+        from stable_baselines3 import PPO
+    except ImportError:
+        raise SystemExit("error: stable-baselines3 is not installed; pip install -e '.[sb3]'") from None
+    torch.set_num_threads(1)
+    env = gym.make(ENV_IDS[args.regime], **({} if args.full_flights else short_flights(args.regime)))
+    batch = min(64, args.n_steps)
+    model = PPO("MlpPolicy", env, n_steps=args.n_steps, batch_size=batch, seed=args.seed, verbose=0,
+                policy_kwargs={"net_arch": [256, 256]})
+    t0 = time.perf_counter()
+    model.learn(total_timesteps=args.total_timesteps, progress_bar=False)
+    args.out.mkdir(parents=True, exist_ok=True)
+    model.save(args.out / "model.zip")
+    rewards = [ep["r"] for ep in model.ep_info_buffer] if model.ep_info_buffer else []
+    mean = f"{sum(rewards) / len(rewards):.1f}" if rewards else "n/a"
+    print(f"SB3 PPO: {model.num_timesteps} decisions in {time.perf_counter() - t0:.0f} s, "
+          f"mean episode return {mean} over the last {len(rewards)} episodes -> {args.out / 'model.zip'}")
+
+
+if __name__ == "__main__":
+    main()
