@@ -172,6 +172,8 @@ CONFIG_RANGES: dict[str, Range] = {
     "WindProfileConfig.reference_height_m": Range(0.1, 1000.0, "m, positive: the power law divides by it"),
     "WindProfileConfig.max_horizontal_wind_m_s": Range(0.0, 100.0, "m/s"),
     "RewardConfig.crash_tilt_deg": Range(1.0, 180.0, "deg"),
+    # inf is the unbounded limit of the Gauss-Markov bias: a random walk (the legacy_walk preset)
+    "SensorChannelConfig.bias_corr_time_s": Range(1e-3, math.inf, "s, positive; inf makes the bias a random walk"),
 }
 # a field whose name ends in one of these units, or names one of these quantities, is a magnitude
 # (a duration, a rate, a mass, an area, a spread, a size) and is never negative
@@ -226,9 +228,9 @@ def _check_value(label: str, key: str, value, hint, name: str) -> None:
             raise TypeError(f"{label}={value!r}: expected a number")
         if hint is int and not isinstance(value, int):
             raise TypeError(f"{label}={value!r}: expected an integer")
-        if not math.isfinite(value):
-            raise ValueError(f"{label}={value!r} must be finite")
         r = CONFIG_RANGES.get(key)
+        if not math.isfinite(value) and not (r is not None and value == r.high == math.inf):
+            raise ValueError(f"{label}={value!r} must be finite")
         if r is not None and not r.low <= value <= r.high:
             raise ValueError(f"{label}={value!r} is outside the allowed range {r.describe()}")
         if r is None and value < 0 and _is_magnitude(name):
