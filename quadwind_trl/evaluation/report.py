@@ -93,9 +93,11 @@ def pd_calibration_section(result: dict) -> str:
                      f"(paper 13.96 m).")
         lines.append("Out of distribution the PD fails in the paper's way: error rising with wind, means far above")
         lines.append("medians because a few episodes are blown off track when gusts push the upwind airspeed past")
-        lines.append("the 30.5 m/s a 35-degree tilt can hold. The paper's collapse is stronger (mean and worst case")
-        lines.append("about 1.6x ours, lawnmower 2.7x); our lawnmower turns at a 30 m radius, the paper's geometry is")
-        lines.append("unknown, and one 47 m episode moves a 90-episode mean by 0.5 m.")
+        mower = t["by_trajectory"].get("lawnmower_h", {}).get("mean", float("nan"))
+        lines.append("the 30.5 m/s a 35-degree tilt can hold. The paper's collapse is stronger (mean "
+                     f"{paper.OOD['pd_mean'] / a['mean']:.1f}x ours, worst case {paper.OOD['pd_worst'] / a['max']:.1f}x, "
+                     f"lawnmower {13.96 / mower:.1f}x); the paper's pattern geometry is unknown, and one 47 m")
+        lines.append("episode moves a 90-episode mean by 0.5 m.")
         lines.append("")
     return "\n".join(lines)
 
