@@ -41,6 +41,20 @@ class VehicleConfig:
     drag_area_xy_m2: float = 0.038  # paper, C_d A along body x and y
     drag_area_z_m2: float = 0.10  # paper, C_d A along body z
     air_density_kg_m3: float = 1.225  # paper
+    # How a rotor's thrust at a given speed depends on the air flowing through it (ours: the
+    # paper gives only the static k_T). "momentum": blade-element theory with Glauert's uniform
+    # inflow (Leishman 2006, Principles of Helicopter Aerodynamics, ch. 2-3, 5): thrust falls in
+    # climb and in an updraught through the disc, rises in descent and in edgewise flow
+    # (translational lift), and equals k_T omega^2 in still air. "static": k_T omega^2 always
+    # (the calibration of the shipped checkpoints; saved configs without the field get it).
+    rotor_aero: Literal["momentum", "static"] = "momentum"
+    # 10-inch two-blade propellers: the paper's k_T is a static thrust coefficient
+    # T / (rho n^2 D^4) = 0.116 at D = 0.254 m, typical of 10 x 4.5-4.7 propellers (UIUC propeller
+    # data), and its 1200 rad/s (11,500 rpm) a 10-inch propeller's limit; solidity 2 c / (pi R)
+    # for a 2 cm chord at three-quarter radius; 2-D lift slope 5.7 /rad
+    rotor_radius_m: float = 0.127
+    rotor_solidity: float = 0.10
+    blade_lift_slope_per_rad: float = 5.7
 
     @property
     def hover_thrust_n(self) -> float:
@@ -53,6 +67,11 @@ class VehicleConfig:
     def validate(self) -> None:
         _check_range("VehicleConfig", "mass_kg", self.mass_kg, 0.05, 50.0)
         _check_range("VehicleConfig", "motor_time_constant_s", self.motor_time_constant_s, 1e-4, 1.0)
+        if self.rotor_aero not in ("momentum", "static"):
+            raise ValueError(f"VehicleConfig.rotor_aero={self.rotor_aero!r}; allowed: 'momentum', 'static'")
+        _check_range("VehicleConfig", "rotor_radius_m", self.rotor_radius_m, 0.01, 2.0)
+        _check_range("VehicleConfig", "rotor_solidity", self.rotor_solidity, 0.01, 0.5)
+        _check_range("VehicleConfig", "blade_lift_slope_per_rad", self.blade_lift_slope_per_rad, 1.0, 7.0)
         max_total = 4 * self.thrust_coeff * self.rotor_speed_max_rad_s**2
         if self.collective_thrust_max_hover * self.hover_thrust_n > max_total + 1e-9:
             raise ValueError(
@@ -94,15 +113,29 @@ class NavigationConfig:
     They minimise the white-noise part of the navigation error for the paper's noise figures
     (a Monte Carlo of the filter's error dynamics, docs/simulator.md); the ``legacy_walk``
     sensing preset keeps the earlier 0.1 / 0.2 / 0.04 (1 s / 0.5 s / 1 s).
+
+    ``height_reference`` is what anchors the altitude. ``"baro"``: the barometer alone, its
+    bias passing through (standalone and SBAS receivers, whose vertical error is metre-level).
+    ``"gnss"``: the receiver's height, centimetre-level with RTK, pulls the altitude with
+    ``gnss_height_gain``; the barometer still corrects it, less its offset, estimated against
+    that reference with ``baro_offset_gain`` (0.005 per 25 Hz sample: the offset error decays
+    with a ~28 s time constant, the baro correcting the altitude faster than the GNSS does) -
+    what PX4's EKF2 does with ``EKF2_HGT_REF = GPS``, the setting its docs recommend for RTK.
+    Configs saved before this field get ``"baro"``.
     """
 
     gps_position_gain: float = 0.02
     gps_velocity_gain: float = 0.2
     baro_gain: float = 0.02
+    height_reference: Literal["baro", "gnss"] = "gnss"
+    gnss_height_gain: float = 0.02
+    baro_offset_gain: float = 0.005
 
     def validate(self) -> None:
-        for name in ("gps_position_gain", "gps_velocity_gain", "baro_gain"):
+        for name in ("gps_position_gain", "gps_velocity_gain", "baro_gain", "gnss_height_gain", "baro_offset_gain"):
             _check_range("NavigationConfig", name, getattr(self, name), 0.0, 1.0)
+        if self.height_reference not in ("baro", "gnss"):
+            raise ValueError(f"NavigationConfig.height_reference={self.height_reference!r}; allowed: 'baro', 'gnss'")
 
 
 @dataclass(frozen=True)
@@ -326,12 +359,14 @@ LEGACY_SENSORS = SensorConfig(
     gyro=_walk(100.0, _DEG(0.3), _DEG(0.005)),
     accel=_walk(100.0, 0.05, 0.001),
 )
-LEGACY_NAVIGATION = NavigationConfig(gps_position_gain=0.1, gps_velocity_gain=0.2, baro_gain=0.04)
+LEGACY_NAVIGATION = NavigationConfig(gps_position_gain=0.1, gps_velocity_gain=0.2, baro_gain=0.04, height_reference="baro")
 
 SensorPreset = Literal["rtk", "sbas", "standalone", "legacy_walk"]
-# name -> (sensors, navigation filter). The receiver classes differ only in the GNSS biases.
+# name -> (sensors, navigation filter). The receiver classes differ in the GNSS biases and so in
+# the height reference: only an RTK receiver's height beats the barometer's.
 SENSOR_PRESETS: dict[str, tuple[SensorConfig, NavigationConfig]] = {
-    **{name: (replace(SensorConfig(), gps_pos=pos, gps_vel=vel), NavigationConfig()) for name, (pos, vel) in _GNSS.items()},
+    **{name: (replace(SensorConfig(), gps_pos=pos, gps_vel=vel),
+              NavigationConfig(height_reference="gnss" if name == "rtk" else "baro")) for name, (pos, vel) in _GNSS.items()},
     "legacy_walk": (LEGACY_SENSORS, LEGACY_NAVIGATION),
 }
 
@@ -456,6 +491,10 @@ def config_from_dict(cls, data: dict):
         return _legacy_sensors(data)
     if cls is TurbulenceConfig and "anisotropy" not in data:
         data = dict(data, anisotropy="local_scaling")  # saved before the divergence-free stretch
+    if cls is VehicleConfig and "rotor_aero" not in data:
+        data = dict(data, rotor_aero="static")  # saved before the inflow-dependent rotor thrust
+    if cls is NavigationConfig and "height_reference" not in data:
+        data = dict(data, height_reference="baro")  # saved before the GNSS height reference
     hints = typing.get_type_hints(cls)
     unknown = set(data) - {f.name for f in fields(cls)}
     if unknown:

@@ -20,6 +20,7 @@ from quadwind_trl.envs import TRAJECTORIES, QuadWindEnv, make_scenarios
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.simulator import QuadSimulator
+from quadwind_trl.envs.vehicle import VehicleParams, rotor_thrust_ratio
 
 from conftest import quiet_config, short_trajectories, windy_config
 
@@ -59,11 +60,17 @@ def _drag_components(airspeed: float, tilt: float) -> tuple[float, float]:
     return along, up
 
 
-def test_steady_wind_offset_matches_force_balance():
+@pytest.mark.parametrize("rotor_aero", ["static", "momentum"])
+def test_steady_wind_offset_matches_force_balance(rotor_aero):
     """In a steady 8 m/s wind the PD (no integral action) settles where its restoring force
-    balances the drag: tilt from tan(t) = D_x / (m g - D_z), offsets D / (m Kp)."""
+    balances the drag: tilt from tan(t) = D_x / (m g - D_z). The rotors deliver ``r`` times the
+    commanded thrust (``r = 1`` static; with the momentum model ``r`` of the body-frame airflow:
+    airspeed sin(t) along the rotor axis, cos(t) across it, at the rotor speed of that thrust), so
+    the offsets are x: D_x / (r m Kp_x) and z: (g - (m g - D_z) / (r m)) / Kp_z."""
     wind = 8.0
-    sim, state = _hover_sim(windy_config(), wind_speed_ref_m_s=wind, wind_dir_deg=270.0)  # from the west
+    cfg = windy_config()
+    cfg = replace(cfg, vehicle=replace(cfg.vehicle, rotor_aero=rotor_aero))
+    sim, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)  # from the west
     ref = state["ref_pos"].clone()
     state = _run(sim, state, 25.0)
     weight = VEH.mass_kg * GRAVITY_M_S2
@@ -72,22 +79,36 @@ def test_steady_wind_offset_matches_force_balance():
         along, up = _drag_components(wind, tilt)
         tilt = math.atan(along / (weight - up))
     along, up = _drag_components(wind, tilt)
+    ratio = 1.0
+    if rotor_aero == "momentum":
+        aero = VehicleParams.from_config(cfg.vehicle).rotor
+        air_body = torch.tensor([[-wind * math.cos(tilt), 0.0, wind * math.sin(tilt)]])
+        for _ in range(50):  # the commanded thrust, and so the rotor speed, depends on the ratio
+            speed = math.sqrt((weight - up) / (ratio * math.cos(tilt)) / (4 * VEH.thrust_coeff))
+            ratio = rotor_thrust_ratio(air_body, torch.full((1, 4), speed), aero)[0, 0].item()
+        assert ratio > 1.05  # translational lift outweighs the axial inflow at this tilt
     kp = sim.cfg.controller.kp_pos
     offset = state["pos"] - ref
     rot = quat_to_rotmat(state["quat"])
     sim_tilt = math.acos(rot[0, 2, 2].item())
+    expected_x = along / (ratio * VEH.mass_kg * kp[0])
+    expected_z = (GRAVITY_M_S2 - (weight - up) / (ratio * VEH.mass_kg)) / kp[2]
     assert abs(sim_tilt - tilt) < 0.02 * tilt
-    assert abs(offset[0, 0].item() - along / (VEH.mass_kg * kp[0])) < 0.02 * along / (VEH.mass_kg * kp[0])
-    assert abs(offset[0, 2].item() - up / (VEH.mass_kg * kp[2])) < 0.02 * abs(up / (VEH.mass_kg * kp[2]))
+    assert abs(offset[0, 0].item() - expected_x) < 0.02 * expected_x
+    assert abs(offset[0, 2].item() - expected_z) < 0.02 * abs(expected_z)
     assert abs(offset[0, 1].item()) < 1e-3
     assert rot[0, 0, 2].item() < 0  # the thrust axis leans upwind (towards -x)
 
 
 def test_tilt_limit_saturates_and_the_vehicle_is_blown_away():
     """Beyond the critical airspeed the tilt limit binds: the PD cannot hold position and the
-    vehicle drifts downwind at the wind speed minus the airspeed its 35-degree tilt can hold."""
+    vehicle drifts downwind at the wind speed minus the airspeed its 35-degree tilt can hold.
+    Static rotor thrust: at 30 m/s through discs tilted 35 degrees the momentum model's rotors
+    lose a third of their thrust, and the closed form below is for the drag and the tilt alone."""
     wind = 40.0
-    sim, state = _hover_sim(windy_config(cap_m_s=60.0), wind_speed_ref_m_s=wind, wind_dir_deg=270.0)
+    cfg = windy_config(cap_m_s=60.0)
+    cfg = replace(cfg, vehicle=replace(cfg.vehicle, rotor_aero="static"))
+    sim, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)
     state = _run(sim, state, 30.0)
     max_tilt = math.radians(35.0)
     weight = VEH.mass_kg * GRAVITY_M_S2
@@ -273,21 +294,38 @@ def test_bad_config_fails_with_the_field_name():
 
 
 def test_pd_tracks_every_trajectory_in_still_air():
-    """Centimetre tracking without wind: what is left is the drag-induced lag of a PD without
-    integral action (about 18 cm at the 10 m/s cruise speed: 1/2 rho CdA v^2 / (m Kp))."""
+    """Centimetre tracking without wind: what is left in xy is the drag-induced lag of a PD
+    without integral action (about 18 cm at the 10 m/s cruise speed: 1/2 rho CdA v^2 / (m Kp)),
+    and in z the translational lift of the rotors at cruise, which the PD (allocating with the
+    static thrust law) meets with a steady offset g (1 - 1/r) / Kp_z."""
     cfg = quiet_config(trajectories=short_trajectories())
     env = QuadWindEnv(cfg, batch_size=[len(TRAJECTORIES)])
     sc = make_scenarios(len(TRAJECTORIES), traj_id=list(range(len(TRAJECTORIES))), altitude_m=20.0)
     res = fly(env, sc)
     assert not res.crashed.any()
-    drag_lag = HALF_RHO * VEH.drag_area_xy_m2 * cfg.trajectories.cruise_speed_m_s**2 / (VEH.mass_kg * 5.0)
+    speed = cfg.trajectories.cruise_speed_m_s
+    drag_lag = HALF_RHO * VEH.drag_area_xy_m2 * speed**2 / (VEH.mass_kg * 5.0)
     # the vertical scan turns on 20 m semicircles at 10 m/s: 5 m/s^2 of centripetal demand that
     # reverses every leg, so the attitude loop's lag at each turn entry adds to the drag lag
     # (0.39 m measured; docs/simulator.md, trajectories)
     bound = torch.full((len(TRAJECTORIES),), drag_lag + 0.05)
     bound[TRAJECTORIES.index("lawnmower_scan")] = drag_lag + 0.25
-    assert (res.rmse < bound).all(), dict(zip(TRAJECTORIES, res.rmse.tolist()))
-    assert res.rmse[0] > 0.8 * drag_lag  # the loiter circle shows the lag
+    assert (res.rmse_xy < bound).all(), dict(zip(TRAJECTORIES, res.rmse_xy.tolist()))
+    assert res.rmse_xy[0] > 0.8 * drag_lag  # the loiter circle shows the lag
+    # level cruise: the disc tilted by the drag's angle into a 10 m/s airflow, at hover rotor speed
+    tilt = math.atan(HALF_RHO * VEH.drag_area_xy_m2 * speed**2 / (VEH.mass_kg * GRAVITY_M_S2))
+    air = torch.tensor([[-speed * math.cos(tilt), 0.0, speed * math.sin(tilt)]])
+    lift = rotor_thrust_ratio(air, torch.full((1, 4), VEH.hover_rotor_speed_rad_s), VehicleParams.from_config(VEH).rotor)
+    cruise_offset = GRAVITY_M_S2 * (1.0 - 1.0 / lift[0, 0].item()) / cfg.controller.kp_pos[2]
+    level = torch.tensor([not name.startswith(("vertical", "spiral", "figure8_3d", "lawnmower")) and name != "hover"
+                          for name in TRAJECTORIES])
+    assert 0.15 < cruise_offset < 0.25
+    z = dict(zip(TRAJECTORIES, res.rmse_z.tolist()))
+    # the circle and the racetrack fly at constant speed: the offset is steady (turns tilt the
+    # disc a little more, and the figure eight's changing bank moves it about)
+    assert abs(z["loiter_circle_h"] - cruise_offset) < 0.02 and abs(z["racetrack_h"] - cruise_offset) < 0.02, z
+    assert (res.rmse_z[level] < cruise_offset + 0.05).all(), z
+    assert res.rmse_z[TRAJECTORIES.index("hover")] < 0.01
     assert (res.nav_rmse_xy == 0).all() and (res.nav_rmse_z == 0).all()  # truth feedback: nothing unseen
 
 
@@ -317,14 +355,15 @@ _LEGACY_RMSE = {
 def test_legacy_walk_preset_reproduces_the_pre_gauss_markov_flight_bit_for_bit(anisotropy):
     """Two horizontal PD episodes (the quick subset's rows 0 and 9: loiter and lawnmower, 8 s of
     pattern from an airborne start) flown with the legacy sensors reproduce, to the last bit, the
-    code that recorded them: with ``anisotropy="local_scaling"`` the vehicle the shipped
-    checkpoints and their committed results were made on."""
+    code that recorded them (static rotor thrust, as then): with ``anisotropy="local_scaling"``
+    the vehicle the shipped checkpoints and their committed results were made on."""
     from quadwind_trl.evaluation.tracking import fly_sweep, quick_subset
     from quadwind_trl.regimes import HORIZONTAL_SWEEP
 
     cfg = with_sensor_preset(EnvConfig(), "legacy_walk")
     cfg = replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=8.0),
-                  turbulence=replace(cfg.turbulence, anisotropy=anisotropy))
+                  turbulence=replace(cfg.turbulence, anisotropy=anisotropy),
+                  vehicle=replace(cfg.vehicle, rotor_aero="static"))
     sc = quick_subset(HORIZONTAL_SWEEP, HORIZONTAL_SWEEP.scenarios())[[0, 9]]
     sc["start_step"][:] = -1
     ep = fly_sweep(QuadWindEnv(cfg, batch_size=[2]), sc)
@@ -342,6 +381,7 @@ def test_shipped_policies_load_their_config_as_the_legacy_preset(regime):
     cfg = config_from_dict(EnvConfig, saved)
     assert cfg.sensors == LEGACY_SENSORS and cfg.navigation == LEGACY_NAVIGATION
     assert cfg.turbulence.anisotropy == "local_scaling"  # the field they were trained in
+    assert cfg.vehicle.rotor_aero == "static"  # and the rotor thrust they flew
     assert with_sensor_preset(EnvConfig(), "legacy_walk") == replace(EnvConfig(), sensors=LEGACY_SENSORS,
                                                                        navigation=LEGACY_NAVIGATION)
     tampered = dict(saved, sensors=dict(saved["sensors"], gps_pos=dict(saved["sensors"]["gps_pos"], noise_std=0.1)))

@@ -325,3 +325,28 @@ def test_hash_rows_are_pure_functions_of_key_and_counter():
         assert torch.equal(hash_bits(keys[i : i + 1], counters[i : i + 1], 9, 6), full[i : i + 1])
     assert torch.equal(hash_bits(keys, counters, 9, 3), full[:, :3])  # columns do not depend on num
     assert (hash_bits(keys, counters, 10, 6) != full).float().mean() > 0.99
+
+
+@pytest.mark.parametrize("reference", ["baro", "gnss"])
+def test_height_reference_decides_whether_the_baro_offset_reaches_the_altitude(reference):
+    """A vehicle at rest at 100 m, noise-free sensors, the barometer reading 0.15 m high and the
+    GNSS height exact: with the barometer as anchor the estimate settles on its bias; with the GNSS
+    height it settles on the truth and the filter's offset estimate on the bias (the offset error
+    decays with a ~28 s time constant: 240 s is more than eight)."""
+    from quadwind_trl.config import NavigationConfig
+    from quadwind_trl.envs.navigation import NavigationParams, init_navigation, update_navigation
+
+    meas = torch.zeros(1, NUM_SENSOR_CHANNELS)
+    meas[:, 2] = 100.0  # GNSS height
+    meas[:, 6] = 100.15  # barometer, biased
+    meas[:, 15] = 9.81  # accelerometer at rest (the filter removes the same g)
+    params = NavigationParams.from_config(NavigationConfig(height_reference=reference))
+    nav = init_navigation(meas)
+    for step in range(1, 24001):
+        gps, baro = torch.tensor([[step % 10 == 0]]), torch.tensor([[step % 4 == 0]])
+        nav = update_navigation(nav, meas, meas[:, 13:16], gps, baro, params, DT)
+    error = nav["pos"][0, 2].item() - 100.0
+    if reference == "baro":
+        assert abs(error - 0.15) < 1e-3 and nav["baro_offset"].abs().max().item() == 0.0
+    else:
+        assert abs(error) < 2e-3 and abs(nav["baro_offset"][0, 0].item() - 0.15) < 2e-3

@@ -2,12 +2,20 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import torch
 
 from quadwind_trl.config import GRAVITY_M_S2, VehicleConfig
 from quadwind_trl.envs.rotations import quat_from_euler, quat_to_rotmat
-from quadwind_trl.envs.vehicle import RigidBody, VehicleParams, allocate, drag_force_body, physics_step
+from quadwind_trl.envs.vehicle import (
+    RigidBody,
+    VehicleParams,
+    allocate,
+    drag_force_body,
+    physics_step,
+    rotor_thrust_ratio,
+)
 
 CFG = VehicleConfig()
 P = VehicleParams.from_config(CFG)
@@ -57,12 +65,12 @@ def _body(pos=(0.0, 0.0, 500.0), quat=(1.0, 0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0
     )
 
 
-def _advance(body: RigidBody, steps: int, rotor_cmd=None, wind=None):
+def _advance(body: RigidBody, steps: int, rotor_cmd=None, wind=None, params: VehicleParams = P):
     rotor_cmd = body.rotor if rotor_cmd is None else rotor_cmd
     wind = torch.zeros(1, 3) if wind is None else wind
     sf = None
     for _ in range(steps):
-        body, sf = physics_step(body, rotor_cmd, wind, P, 0.002)
+        body, sf = physics_step(body, rotor_cmd, wind, params, 0.002)
     return body, sf
 
 
@@ -103,11 +111,82 @@ def test_free_fall_and_ground_contact():
 
 def test_slow_motion_is_not_lost_to_float32_at_altitude():
     """0.5 mm/s at 600 m moves 1 um per 2 ms step, under half an ulp of 600 m in float32:
-    without compensated summation the vehicle would never move."""
+    without compensated summation the vehicle would never move. Static rotor thrust: the
+    inflow model would (rightly) brake the climb, and the subject here is the position sum."""
     body = _body(pos=(0.0, 0.0, 600.0))
     body = body._replace(vel=torch.tensor([[0.0, 0.0, 5e-4]]))
     hover = math.sqrt(CFG.mass_kg * GRAVITY_M_S2 / (4 * CFG.thrust_coeff))
     body = body._replace(rotor=torch.full((1, 4), hover))
-    moved, _ = _advance(body, 500)  # 1 s
+    moved, _ = _advance(body, 500, params=VehicleParams.from_config(replace(CFG, rotor_aero="static")))  # 1 s
     travelled = (moved.pos[0, 2] - 600.0).item() + moved.pos_carry[0, 2].neg().item()
     assert abs(travelled - 5e-4) < 5e-5, travelled
+
+
+# --- rotor thrust with inflow (blade element + Glauert momentum) ---------------------------------
+
+AERO = P.rotor
+
+
+def _ratio(v_body, speed=None):
+    v = torch.tensor(v_body, dtype=torch.float32).reshape(-1, 3)
+    omega = torch.full((v.shape[0], 4), speed or CFG.hover_rotor_speed_rad_s)
+    return rotor_thrust_ratio(v, omega, AERO)
+
+
+def test_rotor_thrust_is_k_t_omega_squared_in_still_air():
+    for speed in (300.0, CFG.hover_rotor_speed_rad_s, 1100.0):
+        torch.testing.assert_close(_ratio([0.0, 0.0, 0.0], speed), torch.ones(1, 4), rtol=2e-6, atol=0.0)
+    static = VehicleParams.from_config(replace(CFG, rotor_aero="static"))
+    assert static.rotor is None
+
+
+def test_axial_inflow_matches_the_closed_form_momentum_solution():
+    """Without edgewise flow the two equations reduce to a quadratic in the inflow ratio, solved here
+    independently of the Newton iteration; the model clamps descent at the hover induced velocity."""
+    s, theta, tip = AERO.half_solidity_lift, AERO.pitch, CFG.hover_rotor_speed_rad_s * AERO.radius
+    hover_induced = AERO.hover_inflow * tip
+    for v_climb in (-5.0, -2.0, -0.5, 0.5, 2.5, 6.0, 12.0):
+        lc = max(v_climb / tip, -AERO.hover_inflow)
+        b = s / 4.0 - lc
+        lam = (-b + math.sqrt(b * b + 4.0 * s * theta / 6.0)) / 2.0
+        expected = s * (theta / 3.0 - lam / 2.0) / AERO.static_ct
+        torch.testing.assert_close(_ratio([0.0, 0.0, v_climb])[0, 0].item(), expected, rtol=1e-5, atol=0.0)
+    assert 7.0 < hover_induced < 7.3  # 7.2 m/s for 2.59 kg on four 10-inch rotors
+
+
+def test_thrust_slope_in_climb_is_the_linearised_momentum_result():
+    """d(T/T0)/dV_climb at hover = -(sigma a / 4) D / (C_T0 omega R), D = 1 / (2 (1 + sigma a / (16 lambda_h)))."""
+    s, lh, tip = AERO.half_solidity_lift, AERO.hover_inflow, CFG.hover_rotor_speed_rad_s * AERO.radius
+    slope = -(s / 2.0) / (2.0 * (1.0 + s / (8.0 * lh))) / (AERO.static_ct * tip)
+    dv = 0.01
+    numeric = (_ratio([0.0, 0.0, dv]) - _ratio([0.0, 0.0, -dv]))[0, 0].item() / (2 * dv)
+    assert abs(numeric - slope) < 0.02 * abs(slope)
+    assert -0.05 < slope < -0.035  # about 4 % of thrust per m/s of climb (or updraught) through the disc
+
+
+def test_edgewise_flow_raises_thrust_and_newton_has_converged_over_the_envelope():
+    ratios = _ratio([[v, 0.0, 0.0] for v in (0.0, 2.0, 5.0, 10.0, 20.0)])[:, 0]
+    assert (ratios.diff() > 0).all()  # translational lift
+    # residual of the inflow equation after the fixed four steps, against a 40-step solution
+    grid = torch.tensor([[u, 0.0, w] for u in (0.0, 3.0, 10.0, 25.0, 35.0) for w in (-8.0, -3.0, 0.0, 2.0, 8.0, 15.0)])
+    omega = torch.tensor([250.0, 651.0, 900.0, 1200.0]).expand(grid.shape[0], 4)
+    from quadwind_trl.envs import vehicle
+
+    steps = vehicle._INFLOW_NEWTON_STEPS
+    try:
+        vehicle._INFLOW_NEWTON_STEPS = 40
+        converged = rotor_thrust_ratio(grid, omega, AERO)
+    finally:
+        vehicle._INFLOW_NEWTON_STEPS = steps
+    torch.testing.assert_close(rotor_thrust_ratio(grid, omega, AERO), converged, rtol=1e-5, atol=0.0)
+
+
+def test_an_updraught_lifts_a_vehicle_at_hover_rotor_speed():
+    """A 1 m/s updraught lowers the air's inflow through the discs: at hover rotor speed the thrust
+    rises as in a 1 m/s descent, and the vehicle accelerates upwards at that fraction of g (plus
+    the vertical drag of the body)."""
+    body = _body(pos=(0.0, 0.0, 100.0))._replace(rotor=torch.full((1, 4), CFG.hover_rotor_speed_rad_s))
+    _, sf = _advance(body, 1, wind=torch.tensor([[0.0, 0.0, 1.0]]))
+    expected = _ratio([0.0, 0.0, -1.0])[0, 0].item() * GRAVITY_M_S2 + 0.5 * 1.225 * 0.10 / CFG.mass_kg
+    torch.testing.assert_close(sf[0, 2].item(), expected, rtol=1e-5, atol=0.0)
+    assert sf[0, 2].item() > GRAVITY_M_S2 * 1.03

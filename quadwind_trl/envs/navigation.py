@@ -3,8 +3,10 @@
 Position and velocity are predicted at the control rate from the accelerometer (the mean of its
 samples over the step, rotated to the world with the measured attitude, gravity removed) and pulled towards GPS position and velocity
 (10 Hz) and barometric altitude (25 Hz) whenever those sensors deliver a new sample
-(complementary filter with fixed gains). The white GPS noise is filtered; its random-walk bias is
-not observable without another absolute reference and passes through, as on a real vehicle.
+(complementary filter with fixed gains). The white noise is filtered; the GNSS biases are not
+observable without another absolute reference and pass through, as on a real vehicle. The
+altitude's anchor is ``NavigationConfig.height_reference``: the barometer (its bias passes
+through) or the GNSS height (the barometer's offset is then estimated against it and removed).
 The gains (``NavigationConfig``) are constant: a steady-state filter, tuned for the paper's noise.
 Attitude and body rates are taken from the attitude sensor and the gyro as they are.
 """
@@ -24,15 +26,21 @@ class NavigationParams:
     pos_gain: float  # fraction of the GPS position innovation applied per GPS sample
     vel_gain: float
     alt_gain: float  # fraction of the barometric innovation applied per baro sample
+    gnss_height: bool  # the GNSS height anchors the altitude (else the barometer does)
+    gnss_height_gain: float  # per GPS sample
+    baro_offset_gain: float  # per baro sample
 
     @classmethod
     def from_config(cls, cfg: NavigationConfig) -> "NavigationParams":
-        return cls(cfg.gps_position_gain, cfg.gps_velocity_gain, cfg.baro_gain)
+        return cls(cfg.gps_position_gain, cfg.gps_velocity_gain, cfg.baro_gain, cfg.height_reference == "gnss",
+                   cfg.gnss_height_gain, cfg.baro_offset_gain)
 
 
 def init_navigation(meas: Tensor) -> dict[str, Tensor]:
-    """Start from the first measurements: GPS horizontal position, baro altitude, GPS velocity."""
-    return {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6].clone()}
+    """Start from the first measurements: GPS horizontal position, baro altitude, GPS velocity,
+    and a zero barometer offset (its expected value)."""
+    return {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6].clone(),
+            "baro_offset": torch.zeros_like(meas[..., 6:7])}
 
 
 def update_navigation(
@@ -52,6 +60,12 @@ def update_navigation(
     vel = nav["vel"] + dt * acc
     pos = nav["pos"] + dt * vel
     pos_xy = torch.where(gps_tick, pos[..., :2] + p.pos_gain * (meas[..., 0:2] - pos[..., :2]), pos[..., :2])
-    pos_z = torch.where(baro_tick, pos[..., 2:] + p.alt_gain * (meas[..., 6:7] - pos[..., 2:]), pos[..., 2:])
+    baro, pos_z, offset = meas[..., 6:7], pos[..., 2:], nav["baro_offset"]
+    if p.gnss_height:
+        offset = torch.where(baro_tick, offset + p.baro_offset_gain * (baro - pos_z - offset), offset)
+        pos_z = torch.where(baro_tick, pos_z + p.alt_gain * (baro - offset - pos_z), pos_z)
+        pos_z = torch.where(gps_tick, pos_z + p.gnss_height_gain * (meas[..., 2:3] - pos_z), pos_z)
+    else:
+        pos_z = torch.where(baro_tick, pos_z + p.alt_gain * (baro - pos_z), pos_z)
     vel = torch.where(gps_tick, vel + p.vel_gain * (meas[..., 3:6] - vel), vel)
-    return {"pos": torch.cat((pos_xy, pos_z), -1), "vel": vel}
+    return {"pos": torch.cat((pos_xy, pos_z), -1), "vel": vel, "baro_offset": offset}

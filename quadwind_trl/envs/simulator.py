@@ -189,15 +189,17 @@ class QuadSimulator:
         feedback = self.cfg.controller.feedback
         if feedback == "truth":
             nav = (state["pos"], state["vel"], rot, state["omega"])
-            out.update({"nav.pos": state["pos"], "nav.vel": state["vel"]})
+            out.update({"nav.pos": state["pos"], "nav.vel": state["vel"],
+                        "nav.baro_offset": torch.zeros_like(state["pos"][..., 2:])})
         else:
             if feedback == "sensors":
-                estimate = {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6]}
+                estimate = {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6],
+                            "baro_offset": torch.zeros_like(meas[..., 6:7])}
             elif first:
                 estimate = init_navigation(meas)
             else:
                 estimate = update_navigation(
-                    {"pos": state["nav.pos"], "vel": state["nav.vel"]},
+                    {"pos": state["nav.pos"], "vel": state["nav.vel"], "baro_offset": state["nav.baro_offset"]},
                     meas,
                     sensor_state["imu_mean"][..., 3:],
                     self.sensors.ticks(state["step"], 0),

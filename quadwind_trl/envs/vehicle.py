@@ -34,6 +34,21 @@ in orthogonality to correct.
 The air velocity (mean wind plus turbulence) is an input held over the step; drag is quadratic
 in the body-frame air-relative velocity, per axis: ``F_i = -1/2 rho CdA_i v_i |v_i|``.
 
+Rotor thrust (``VehicleConfig.rotor_aero``): ``k_T omega^2`` times the ratio
+:func:`rotor_thrust_ratio` of blade-element thrust with Glauert's uniform inflow, at the rotor's
+climb ratio ``lambda_c = v_z / (omega R)`` (air-relative velocity along the rotor axis, body
+``+z``) and advance ratio ``mu = |v_xy| / (omega R)``, to the same in still air. For a
+fixed-pitch rotor (Leishman 2006, eqs. 3.56 and 2.117, linear twist ignored)::
+
+    C_T    = (sigma a / 2) (theta / 3 (1 + 3/2 mu^2) - lambda / 2)
+    lambda = lambda_c + C_T / (2 sqrt(mu^2 + lambda^2))
+
+solved by Newton's method from the hover inflow (four iterations: residual below 1e-6 over the
+flight envelope, tests/test_vehicle.py). ``theta`` follows from the hover condition, so the
+still-air thrust is exactly ``k_T omega^2``. The hub velocity is the body's (the ``omega x r``
+part, under 0.5 m/s at the rates flown, is ignored). Descent faster than the hover induced
+velocity (7.2 m/s; vortex-ring state, where momentum theory fails) is clamped to it.
+
 Ground contact: the ground is the plane ``z = 0``. A vehicle on it whose net force does not
 lift it rests: zero velocity and body rate, and the accelerometer reads the normal force.
 """
@@ -64,6 +79,7 @@ class VehicleParams:
     collective_max: float  # N
     drag_half_rho_cda: Tensor  # [3] 1/2 rho CdA per body axis
     motor_time_constant: float
+    rotor: "RotorAero | None"  # None: static thrust k_T omega^2
 
     @classmethod
     def from_config(cls, cfg: VehicleConfig, device: torch.device | str | None = None) -> "VehicleParams":
@@ -88,7 +104,50 @@ class VehicleParams:
             * cfg.air_density_kg_m3
             * torch.tensor([cfg.drag_area_xy_m2, cfg.drag_area_xy_m2, cfg.drag_area_z_m2], device=device),
             motor_time_constant=cfg.motor_time_constant_s,
+            rotor=RotorAero.from_config(cfg) if cfg.rotor_aero == "momentum" else None,
         )
+
+
+@dataclass
+class RotorAero:
+    """Blade-element constants of one fixed-pitch rotor, derived so hover thrust is ``k_T omega^2``."""
+
+    radius: float  # m
+    half_solidity_lift: float  # sigma a / 2
+    pitch: float  # rad, effective collective that gives the static thrust coefficient
+    hover_inflow: float  # lambda_h = sqrt(C_T0 / 2)
+    static_ct: float  # C_T0 = k_T / (rho pi R^4)
+
+    @classmethod
+    def from_config(cls, cfg: VehicleConfig) -> "RotorAero":
+        ct0 = cfg.thrust_coeff / (cfg.air_density_kg_m3 * math.pi * cfg.rotor_radius_m**4)
+        s = 0.5 * cfg.rotor_solidity * cfg.blade_lift_slope_per_rad
+        inflow = math.sqrt(ct0 / 2.0)
+        return cls(cfg.rotor_radius_m, s, 3.0 * (ct0 / s + inflow / 2.0), inflow, ct0)
+
+
+_INFLOW_NEWTON_STEPS = 4
+
+
+def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero) -> Tensor:
+    """Thrust ``[N, 4]`` of each rotor relative to its still-air value ``k_T omega^2``, for the
+    body-frame velocity relative to the air ``[N, 3]`` and rotor speeds ``[N, 4]`` (rad/s)."""
+    # a stopped rotor makes no thrust whatever the ratio; the floor only keeps the ratio finite
+    tip_speed = (rotor_speed * r.radius).clamp_min(1.0)
+    climb = (air_rel_body[..., 2:] / tip_speed).clamp_min(-r.hover_inflow)
+    mu2 = air_rel_body[..., :2].square().sum(-1, keepdim=True) / tip_speed.square()
+    s = r.half_solidity_lift
+    ct_blade = s * r.pitch / 3.0 * (1.0 + 1.5 * mu2)  # C_T before the inflow term
+    inflow = torch.full_like(climb, r.hover_inflow)
+    for _ in range(_INFLOW_NEWTON_STEPS):
+        ct = ct_blade - 0.5 * s * inflow
+        speed = torch.sqrt(mu2 + inflow.square())
+        residual = inflow - climb - ct / (2.0 * speed)
+        slope = 1.0 + s / (4.0 * speed) + ct * inflow / (2.0 * speed**3)
+        inflow = inflow - residual / slope
+    # beyond zero thrust (inflow faster than the blades' pitch: windmill state) a fixed-pitch
+    # propeller brakes rather than pulls; the model stops at zero thrust
+    return ((ct_blade - 0.5 * s * inflow) / r.static_ct).clamp_min(0.0)
 
 
 def drag_force_body(air_rel_vel_body: Tensor, half_rho_cda: Tensor) -> Tensor:
@@ -126,9 +185,12 @@ def physics_step(
     ideal accelerometer reads over the step (acceleration minus gravity)."""
     pos, vel, quat, omega = body.pos, body.vel, body.quat, body.omega
     rotor = rotor_cmd + (body.rotor - rotor_cmd) * math.exp(-dt / p.motor_time_constant)
-    wrench = vecmat(p.thrust_coeff * rotor * rotor, p.mixer.T)
     rot = quat_to_rotmat(quat)
     air_rel_body = rotate_inverse(rot, vel - air_vel_world)
+    rotor_thrust = p.thrust_coeff * rotor * rotor
+    if p.rotor is not None:
+        rotor_thrust = rotor_thrust * rotor_thrust_ratio(air_rel_body, rotor, p.rotor)
+    wrench = vecmat(rotor_thrust, p.mixer.T)
     force_body = drag_force_body(air_rel_body, p.drag_half_rho_cda)
     force_body = force_body + torch.nn.functional.pad(wrench[..., :1], (2, 0))
     acc = rotate(rot, force_body) / p.mass
