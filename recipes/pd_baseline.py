@@ -2,7 +2,11 @@
 
     python recipes/pd_baseline.py                          # horizontal 225, vertical 144, OOD 90
     python recipes/pd_baseline.py --quick                  # a small smoke subset, short flights
-    python recipes/pd_baseline.py --sensors legacy_walk --out results/legacy/pd_baseline.json
+    python recipes/pd_baseline.py --compile                # the same, compiled: ~7 min instead of ~45
+    python recipes/pd_baseline.py --sensors sbas --out results/pd_baseline_sbas.json
+
+``--sensors`` changes only the sensing; ``results/legacy/`` (the earlier vehicle: static rotor
+thrust, locally scaled turbulence) re-flies at the commit its manifest names.
 
 Writes ``results/pd_baseline.json`` (per-group statistics of the tracking RMSE and of the
 navigation error, with the command and config); the report (``recipes/report.py``) puts them

@@ -280,6 +280,27 @@ def toy_tracking_section(pd: dict | None, ablations: dict[str, dict], figures: l
     return "\n".join(lines + [""])
 
 
+def sensing_presets_section(results: dict[str, dict]) -> str:
+    """PD and its navigation error on every sweep under each sensing preset (``results``: preset
+    name -> a ``recipes/pd_baseline.py`` result file flown with ``--sensors`` that preset)."""
+    lines = ["## PD and navigation error under each sensing preset", "",
+             "The same sweeps flown with the receiver class changed (`recipes/pd_baseline.py --sensors <preset>`);",
+             "*nav* = mean navigation error, *headroom* = 1 - nav / PD. The commands and commits:", ""]
+    lines += [f"* `{name}`: `{r['command']}` (commit `{r.get('git_commit')}`)" for name, r in results.items()]
+    lines += ["", "| preset | sweep | PD xy (m) | nav xy (m) | headroom xy | PD z (m) | nav z (m) | headroom z |",
+              "|---|---|---|---|---|---|---|---|"]
+    for name, r in results.items():
+        for sweep, block in r["sweeps"].items():
+            t = block["tables"]
+            cells = []
+            for axis in ("xy", "z"):
+                pd_, nav = t[f"rmse_{axis}"]["all"]["mean"], t[f"nav_rmse_{axis}"]["all"]["mean"]
+                cells.append(f"{pd_:.3f} | {nav:.3f} | {100 * (1 - nav / pd_):.0f} %")
+            lines.append(f"| `{name}` | {sweep} | {' | '.join(cells)} |")
+    lines.append("")
+    return "\n".join(lines)
+
+
 def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None,
                  toy: bool = False) -> str:
     """The whole results page: the preamble, then every section whose inputs exist. ``toy``: the
@@ -299,6 +320,11 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
     pd_file = results_dir / "pd_baseline.json"
     if pd_file.exists():
         parts.append(pd_calibration_section(json.loads(pd_file.read_text())))
+    presets = {path.stem.removeprefix("pd_baseline_"): path for path in sorted(results_dir.glob("pd_baseline_*.json"))}
+    if pd_file.exists() and presets:
+        default = json.loads(pd_file.read_text())
+        runs = {default.get("sensors", "rtk"): default} | {name: json.loads(path.read_text()) for name, path in presets.items()}
+        parts.append(sensing_presets_section(runs))
     if policy_manifests:
         parts.append(training_section(policy_manifests))
     ablations = {name: json.loads((results_dir / f"ablation_{name}.json").read_text())
