@@ -19,9 +19,8 @@ from pathlib import Path
 import gymnasium as gym
 import torch
 
-import quadwind_trl.gym  # noqa: F401  (registers the env ids)
 from quadwind_trl.config import TrajectoryConfig
-from quadwind_trl.gym import ENV_IDS
+from quadwind_trl.gym import ENV_IDS  # importing the module registers the env ids
 from quadwind_trl.rl.envs import regime_config
 
 
