@@ -43,9 +43,10 @@ class VehicleConfig:
     air_density_kg_m3: float = 1.225  # paper
     # How a rotor's thrust at a given speed depends on the air flowing through it (ours: the
     # paper gives only the static k_T). "momentum": blade-element theory with Glauert's uniform
-    # inflow (Leishman 2006, Principles of Helicopter Aerodynamics, ch. 2-3, 5): thrust falls in
-    # climb and in an updraught through the disc, rises in descent and in edgewise flow
-    # (translational lift), and equals k_T omega^2 in still air. "static": k_T omega^2 always
+    # inflow (Leishman 2006, Principles of Helicopter Aerodynamics, ch. 2-3, 5): thrust falls
+    # when air flows down through the disc faster (climb, a downdraught, a disc tilted into the
+    # wind), rises in descent, in an updraught and in edgewise flow (translational lift), and
+    # equals k_T omega^2 in still air. "static": k_T omega^2 always
     # (the calibration of the shipped checkpoints; saved configs without the field get it).
     rotor_aero: Literal["momentum", "static"] = "momentum"
     # 10-inch two-blade propellers: the paper's k_T is a static thrust coefficient

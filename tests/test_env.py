@@ -16,7 +16,7 @@ from quadwind_trl.config import (
     RewardConfig, SensorChannelConfig, TrajectoryConfig, VehicleConfig, config_from_dict, with_sensor_preset,
 )
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
-from quadwind_trl.envs import TRAJECTORIES, QuadWindEnv, make_scenarios
+from quadwind_trl.envs import HORIZONTAL, TRAJECTORIES, VERTICAL, QuadWindEnv, make_scenarios
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.simulator import QuadSimulator
@@ -312,20 +312,27 @@ def test_pd_tracks_every_trajectory_in_still_air():
     bound[TRAJECTORIES.index("lawnmower_scan")] = drag_lag + 0.25
     assert (res.rmse_xy < bound).all(), dict(zip(TRAJECTORIES, res.rmse_xy.tolist()))
     assert res.rmse_xy[0] > 0.8 * drag_lag  # the loiter circle shows the lag
-    # level cruise: the disc tilted by the drag's angle into a 10 m/s airflow, at hover rotor speed
-    tilt = math.atan(HALF_RHO * VEH.drag_area_xy_m2 * speed**2 / (VEH.mass_kg * GRAVITY_M_S2))
+    # level cruise: the disc tilted by the drag's angle into a 10 m/s airflow; the commanded
+    # thrust, and so the rotor speed, depends on the thrust ratio (solved together)
+    weight = VEH.mass_kg * GRAVITY_M_S2
+    tilt = math.atan(HALF_RHO * VEH.drag_area_xy_m2 * speed**2 / weight)
     air = torch.tensor([[-speed * math.cos(tilt), 0.0, speed * math.sin(tilt)]])
-    lift = rotor_thrust_ratio(air, torch.full((1, 4), VEH.hover_rotor_speed_rad_s), VehicleParams.from_config(VEH).rotor)
-    cruise_offset = GRAVITY_M_S2 * (1.0 - 1.0 / lift[0, 0].item()) / cfg.controller.kp_pos[2]
-    level = torch.tensor([not name.startswith(("vertical", "spiral", "figure8_3d", "lawnmower")) and name != "hover"
-                          for name in TRAJECTORIES])
-    assert 0.15 < cruise_offset < 0.25
+    aero, lift = VehicleParams.from_config(VEH).rotor, 1.0
+    for _ in range(50):
+        rotor_speed = math.sqrt(weight / (lift * math.cos(tilt)) / (4 * VEH.thrust_coeff))
+        lift = rotor_thrust_ratio(air, torch.full((1, 4), rotor_speed), aero)[0, 0].item()
+    cruise_offset = GRAVITY_M_S2 * (1.0 - 1.0 / lift) / cfg.controller.kp_pos[2]
+    assert 0.15 < cruise_offset < 0.3
     z = dict(zip(TRAJECTORIES, res.rmse_z.tolist()))
-    # the circle and the racetrack fly at constant speed: the offset is steady (turns tilt the
-    # disc a little more, and the figure eight's changing bank moves it about)
+    # the circle and the racetrack fly at constant speed: the offset is steady (their turns tilt
+    # the disc a little more); the figure eight's and the cloverleaf's changing bank and the
+    # lawnmower's turns move it about, below the steady value
     assert abs(z["loiter_circle_h"] - cruise_offset) < 0.02 and abs(z["racetrack_h"] - cruise_offset) < 0.02, z
-    assert (res.rmse_z[level] < cruise_offset + 0.05).all(), z
-    assert res.rmse_z[TRAJECTORIES.index("hover")] < 0.01
+    assert all(z[name] < cruise_offset + 0.02 for name in HORIZONTAL), z
+    # the vertical patterns climb at 2-3 m/s (thrust -8 to -12 %: the PD lags below), and those
+    # that also cruise at up to 10 m/s gain translational lift: the two partly cancel
+    assert all(z[name] < cruise_offset for name in VERTICAL), z
+    assert z["hover"] < 0.01
     assert (res.nav_rmse_xy == 0).all() and (res.nav_rmse_z == 0).all()  # truth feedback: nothing unseen
 
 

@@ -161,7 +161,7 @@ def test_thrust_slope_in_climb_is_the_linearised_momentum_result():
     dv = 0.01
     numeric = (_ratio([0.0, 0.0, dv]) - _ratio([0.0, 0.0, -dv]))[0, 0].item() / (2 * dv)
     assert abs(numeric - slope) < 0.02 * abs(slope)
-    assert -0.05 < slope < -0.035  # about 4 % of thrust per m/s of climb (or updraught) through the disc
+    assert -0.05 < slope < -0.035  # about 4 % of thrust per m/s of climb (or downdraught)
 
 
 def test_edgewise_flow_raises_thrust_and_newton_has_converged_over_the_envelope():
@@ -190,3 +190,15 @@ def test_an_updraught_lifts_a_vehicle_at_hover_rotor_speed():
     expected = _ratio([0.0, 0.0, -1.0])[0, 0].item() * GRAVITY_M_S2 + 0.5 * 1.225 * 0.10 / CFG.mass_kg
     torch.testing.assert_close(sf[0, 2].item(), expected, rtol=1e-5, atol=0.0)
     assert sf[0, 2].item() > GRAVITY_M_S2 * 1.03
+
+
+def test_rotor_model_refuses_a_rotor_that_would_stall_and_bounds_the_advance_ratio():
+    import pytest
+
+    with pytest.raises(ValueError, match="rotor_radius_m=0.05"):
+        VehicleParams.from_config(replace(CFG, rotor_radius_m=0.05))
+    # a slow rotor in fast edgewise flow: beyond an advance ratio of 0.5 the thrust stops growing
+    slow = 200.0
+    at_limit = _ratio([0.5 * slow * AERO.radius, 0.0, 0.0], slow)
+    beyond = _ratio([[3.0 * slow * AERO.radius, 0.0, 0.0]], slow)
+    torch.testing.assert_close(beyond, at_limit, rtol=1e-6, atol=0.0)

@@ -43,11 +43,13 @@ fixed-pitch rotor (Leishman 2006, eqs. 3.56 and 2.117, linear twist ignored)::
     C_T    = (sigma a / 2) (theta / 3 (1 + 3/2 mu^2) - lambda / 2)
     lambda = lambda_c + C_T / (2 sqrt(mu^2 + lambda^2))
 
-solved by Newton's method from the hover inflow (four iterations: residual below 1e-6 over the
-flight envelope, tests/test_vehicle.py). ``theta`` follows from the hover condition, so the
+solved by Newton's method from the hover inflow (four iterations agree with forty to 1e-5
+relative over the flight envelope, tests/test_vehicle.py). ``theta`` follows from the hover condition, so the
 still-air thrust is exactly ``k_T omega^2``. The hub velocity is the body's (the ``omega x r``
-part, under 0.5 m/s at the rates flown, is ignored). Descent faster than the hover induced
-velocity (7.2 m/s; vortex-ring state, where momentum theory fails) is clamped to it.
+part, under 0.5 m/s at the rates flown, is ignored). Outside momentum theory's range the inputs
+are clamped: a descent ratio beyond the hover inflow ratio (7.2 m/s at hover speed; vortex-ring
+state) and an advance ratio beyond 0.5 (the blade-element thrust term holds to about there; a
+slow rotor in a fast edgewise flow would otherwise gain thrust without bound).
 
 Ground contact: the ground is the plane ``z = 0``. A vehicle on it whose net force does not
 lift it rests: zero velocity and body rate, and the accelerometer reads the normal force.
@@ -108,6 +110,11 @@ class VehicleParams:
         )
 
 
+_INFLOW_NEWTON_STEPS = 4
+_MAX_PITCH_RAD = 0.5  # ~29 deg effective collective: beyond it a blade section stalls
+_MAX_ADVANCE_RATIO = 0.5
+
+
 @dataclass
 class RotorAero:
     """Blade-element constants of one fixed-pitch rotor, derived so hover thrust is ``k_T omega^2``."""
@@ -123,19 +130,24 @@ class RotorAero:
         ct0 = cfg.thrust_coeff / (cfg.air_density_kg_m3 * math.pi * cfg.rotor_radius_m**4)
         s = 0.5 * cfg.rotor_solidity * cfg.blade_lift_slope_per_rad
         inflow = math.sqrt(ct0 / 2.0)
-        return cls(cfg.rotor_radius_m, s, 3.0 * (ct0 / s + inflow / 2.0), inflow, ct0)
-
-
-_INFLOW_NEWTON_STEPS = 4
+        pitch = 3.0 * (ct0 / s + inflow / 2.0)
+        if pitch > _MAX_PITCH_RAD:
+            # each field is within its own range, but together they describe no real rotor
+            raise ValueError(
+                f"VehicleConfig: rotor_radius_m={cfg.rotor_radius_m}, rotor_solidity={cfg.rotor_solidity} and "
+                f"blade_lift_slope_per_rad={cfg.blade_lift_slope_per_rad} need a blade pitch of {math.degrees(pitch):.0f} "
+                f"deg to give thrust_coeff={cfg.thrust_coeff} (allowed up to {math.degrees(_MAX_PITCH_RAD):.0f} deg: "
+                "the blades would stall); use a larger rotor or more solidity")
+        return cls(cfg.rotor_radius_m, s, pitch, inflow, ct0)
 
 
 def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero) -> Tensor:
     """Thrust ``[N, 4]`` of each rotor relative to its still-air value ``k_T omega^2``, for the
     body-frame velocity relative to the air ``[N, 3]`` and rotor speeds ``[N, 4]`` (rad/s)."""
-    # a stopped rotor makes no thrust whatever the ratio; the floor only keeps the ratio finite
+    # the ratio multiplies k_T omega^2, so a stopped rotor makes no thrust; the floor keeps it finite
     tip_speed = (rotor_speed * r.radius).clamp_min(1.0)
     climb = (air_rel_body[..., 2:] / tip_speed).clamp_min(-r.hover_inflow)
-    mu2 = air_rel_body[..., :2].square().sum(-1, keepdim=True) / tip_speed.square()
+    mu2 = (air_rel_body[..., :2].square().sum(-1, keepdim=True) / tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
     s = r.half_solidity_lift
     ct_blade = s * r.pitch / 3.0 * (1.0 + 1.5 * mu2)  # C_T before the inflow term
     inflow = torch.full_like(climb, r.hover_inflow)
