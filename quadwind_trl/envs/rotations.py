@@ -37,27 +37,6 @@ def quat_to_rotmat(q: Tensor) -> Tensor:
     ).unflatten(-1, (3, 3))
 
 
-def rotmat_to_quat(r: Tensor) -> Tensor:
-    """Inverse of :func:`quat_to_rotmat` (Shepperd's method, branch-free over the batch)."""
-    m00, m01, m02 = r[..., 0, 0], r[..., 0, 1], r[..., 0, 2]
-    m10, m11, m12 = r[..., 1, 0], r[..., 1, 1], r[..., 1, 2]
-    m20, m21, m22 = r[..., 2, 0], r[..., 2, 1], r[..., 2, 2]
-    candidates = torch.stack(
-        (
-            torch.stack((1 + m00 + m11 + m22, m21 - m12, m02 - m20, m10 - m01), -1),
-            torch.stack((m21 - m12, 1 + m00 - m11 - m22, m01 + m10, m02 + m20), -1),
-            torch.stack((m02 - m20, m01 + m10, 1 - m00 + m11 - m22, m12 + m21), -1),
-            torch.stack((m10 - m01, m02 + m20, m12 + m21, 1 - m00 - m11 + m22), -1),
-        ),
-        -2,
-    )
-    diag = torch.stack((m00 + m11 + m22, m00, m11, m22), -1)
-    best = diag.argmax(-1, keepdim=True)
-    q = torch.gather(candidates, -2, best.unsqueeze(-1).expand(*best.shape[:-1], 1, 4)).squeeze(-2)
-    q = q / q.norm(dim=-1, keepdim=True)
-    return q * torch.where(q[..., :1] < 0, -1.0, 1.0)
-
-
 def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
     """Z-Y-X (yaw, then pitch, then roll) Euler angles in radians to a quaternion."""
     cr, sr = torch.cos(roll / 2), torch.sin(roll / 2)
