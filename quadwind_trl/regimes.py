@@ -18,8 +18,8 @@ import torch
 from tensordict import TensorDict
 
 from .envs.counter_rng import hash_bits
-from .envs.scenarios import RegimeRanges, latin_hypercube, make_scenarios
-from .envs.trajectories import HORIZONTAL, TRAJECTORY_IDS, VERTICAL
+from .envs.scenarios import RegimeRanges, cross_with_trajectories, latin_hypercube, regimes_from_unit
+from .envs.trajectories import HORIZONTAL, VERTICAL
 
 HORIZONTAL_FLIGHT_ALTITUDE_M = 100.0
 
@@ -75,35 +75,22 @@ class EvalSweep:
         intens = torch.tensor(self.intensities, dtype=torch.float64)
         grid = torch.cartesian_prod(speeds, intens, torch.arange(self.seeds, dtype=torch.float64))
         n_cases = grid.shape[0]
-        u = latin_hypercube(n_cases, self.ranges.dims, self.design_seed)
-
-        def scale(col: int, bounds: tuple[float, float]) -> torch.Tensor:
-            return bounds[0] + u[:, col] * (bounds[1] - bounds[0])
-
-        if self.ranges.altitude_m is None:
-            altitude = torch.full((n_cases,), self.ranges.top_altitude_m, dtype=torch.float64)
-        else:
-            altitude = scale(6, self.ranges.altitude_m)
         case = torch.arange(n_cases)
         seeds = hash_bits(torch.full((n_cases,), self.design_seed, dtype=torch.int64), case, 304, 2) & 0x7FFFFFFF
-        cases = make_scenarios(
-            n_cases,
+        # the hypercube draws the other regime parameters; speed and intensity are the grid's
+        # (checked: they need not lie within ``ranges``)
+        cases = regimes_from_unit(
+            latin_hypercube(n_cases, self.ranges.dims, self.design_seed),
+            self.ranges,
+            check=True,
             wind_speed_ref_m_s=grid[:, 0],
             turb_intensity=grid[:, 1],
-            wind_dir_deg=scale(1, self.ranges.wind_dir_deg),
-            shear_alpha=scale(3, self.ranges.shear_alpha),
-            veer_deg_per_100m=scale(4, self.ranges.veer_deg_per_100m),
-            turb_length_scale_m=scale(5, self.ranges.length_scale_m),
-            altitude_m=altitude,
             stability=grid[:, 2].long() % 3,
             turb_seed=seeds[:, 0],
             sensor_seed=seeds[:, 1],
         )
-        t = len(self.trajectories)
-        out = cases.unsqueeze(1).expand(n_cases, t).clone().reshape(n_cases * t)
-        out["traj_id"] = torch.tensor([TRAJECTORY_IDS[name] for name in self.trajectories]).repeat(n_cases)
-        out["case_id"] = case.repeat_interleave(t)
-        out["seed_index"] = grid[:, 2].long().repeat_interleave(t)
+        out = cross_with_trajectories(cases, self.trajectories)
+        out["seed_index"] = grid[:, 2].long().repeat_interleave(len(self.trajectories))
         return out
 
 

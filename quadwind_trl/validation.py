@@ -58,9 +58,9 @@ SCENARIO_RANGES: dict[str, Range] = {
 
 
 def _trajectory_names() -> tuple[str, ...]:
-    from .envs.trajectories import TRAJECTORIES
+    from .envs.trajectories import trajectory_names
 
-    return TRAJECTORIES
+    return trajectory_names()
 
 
 def _stability_names() -> tuple[str, ...]:

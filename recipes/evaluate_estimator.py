@@ -43,7 +43,7 @@ from quadwind_trl.evaluation.estimation import (
     evaluate_sequences,
     predict_flights,
 )
-from quadwind_trl.envs.trajectories import TRAJECTORIES
+from quadwind_trl.envs.trajectories import trajectory_name, trajectory_names
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR, EstimatorBundle
 from quadwind_trl.training.estimator import EstimatorData, load_estimator_data, split_flights
 
@@ -228,7 +228,7 @@ def example_case(seq: FlightSequences, target_speed: float | None) -> int:
 def case_rows(seq: FlightSequences, case: int) -> tuple[list[int], list[str]]:
     rows = torch.nonzero(seq.case_id == case).flatten().tolist()
     rows.sort(key=lambda i: int(seq.traj_id[i]))
-    return rows, [TRAJECTORIES[int(seq.traj_id[i])] for i in rows]
+    return rows, [trajectory_name(seq.traj_id[i]) for i in rows]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -285,7 +285,7 @@ def main() -> None:
     trained_on = bundle.manifest.get("dataset", {}).get("manifest_sha256")
     if trained_on and trained_on != ed.info["manifest_sha256"]:
         print(f"WARNING: {ckpt} was trained on another dataset ({bundle.manifest['dataset'].get('path')}); its test split may overlap training", flush=True)
-    names = list(TRAJECTORIES)
+    names = list(trajectory_names())
     deployed = bundle.ema_tau_s
     results: dict = {"regime": regime, "checkpoint": repo_relative(ckpt), "data": ed.info, "stride": args.stride,
                      "command": command_line(sys.argv), "deployed_tau_s": deployed}  # fmt: skip

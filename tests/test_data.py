@@ -35,7 +35,7 @@ from quadwind_trl.data import (
 )
 from quadwind_trl.data.windows import sample_stats, t_safety_s
 from quadwind_trl.envs import RegimeRanges
-from quadwind_trl.envs.trajectories import TRAJECTORY_IDS, VERTICAL
+from quadwind_trl.envs.trajectories import trajectory_ids
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -203,7 +203,7 @@ def test_crop_removes_exactly_the_climb(tiny):
 
 def test_crop_formula_and_vertical_flights():
     traj = TrajectoryConfig()
-    ids = torch.tensor([TRAJECTORY_IDS["racetrack_h"], TRAJECTORY_IDS["racetrack_h"], TRAJECTORY_IDS[VERTICAL[2]]])
+    ids = trajectory_ids(["racetrack_h", "racetrack_h", "figure8_3d"])
     alt = torch.tensor([300.0, 3.0, 600.0])
     got = crop_start(ids, alt, traj)
     # 300 m: 100 s climb + 6 s; 3 m: 1 s + 6 s < t_min = 8 s; vertical: the climb is the flight

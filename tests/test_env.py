@@ -16,7 +16,7 @@ from quadwind_trl.config import (
     RewardConfig, SensorChannelConfig, TrajectoryConfig, VehicleConfig, config_from_dict, with_sensor_preset,
 )
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
-from quadwind_trl.envs import HORIZONTAL, TRAJECTORIES, VERTICAL, QuadWindEnv, make_scenarios
+from quadwind_trl.envs import HORIZONTAL, VERTICAL, QuadWindEnv, make_scenarios, trajectory_names
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.simulator import QuadSimulator
@@ -298,9 +298,10 @@ def test_pd_tracks_every_trajectory_in_still_air():
     without integral action (about 18 cm at the 10 m/s cruise speed: 1/2 rho CdA v^2 / (m Kp)),
     and in z the translational lift of the rotors at cruise, which the PD (allocating with the
     static thrust law) meets with a steady offset g (1 - 1/r) / Kp_z."""
+    names = trajectory_names()
     cfg = quiet_config(trajectories=short_trajectories())
-    env = QuadWindEnv(cfg, batch_size=[len(TRAJECTORIES)])
-    sc = make_scenarios(len(TRAJECTORIES), traj_id=list(range(len(TRAJECTORIES))), altitude_m=20.0)
+    env = QuadWindEnv(cfg, batch_size=[len(names)])
+    sc = make_scenarios(len(names), traj_id=list(names), altitude_m=20.0)
     res = fly(env, sc)
     assert not res.crashed.any()
     speed = cfg.trajectories.cruise_speed_m_s
@@ -308,9 +309,9 @@ def test_pd_tracks_every_trajectory_in_still_air():
     # the vertical scan turns on 20 m semicircles at 10 m/s: 5 m/s^2 of centripetal demand that
     # reverses every leg, so the attitude loop's lag at each turn entry adds to the drag lag
     # (0.39 m measured; docs/simulator.md, trajectories)
-    bound = torch.full((len(TRAJECTORIES),), drag_lag + 0.05)
-    bound[TRAJECTORIES.index("lawnmower_scan")] = drag_lag + 0.25
-    assert (res.rmse_xy < bound).all(), dict(zip(TRAJECTORIES, res.rmse_xy.tolist()))
+    bound = torch.full((len(names),), drag_lag + 0.05)
+    bound[names.index("lawnmower_scan")] = drag_lag + 0.25
+    assert (res.rmse_xy < bound).all(), dict(zip(names, res.rmse_xy.tolist()))
     assert res.rmse_xy[0] > 0.8 * drag_lag  # the loiter circle shows the lag
     # level cruise: the disc tilted by the drag's angle into a 10 m/s airflow; the commanded
     # thrust, and so the rotor speed, depends on the thrust ratio (solved together)
@@ -323,7 +324,7 @@ def test_pd_tracks_every_trajectory_in_still_air():
         lift = rotor_thrust_ratio(air, torch.full((1, 4), rotor_speed), aero)[0, 0].item()
     cruise_offset = GRAVITY_M_S2 * (1.0 - 1.0 / lift) / cfg.controller.kp_pos[2]
     assert 0.15 < cruise_offset < 0.3
-    z = dict(zip(TRAJECTORIES, res.rmse_z.tolist()))
+    z = dict(zip(names, res.rmse_z.tolist()))
     # the circle and the racetrack fly at constant speed: the offset is steady (their turns tilt
     # the disc a little more); the figure eight's and the cloverleaf's changing bank and the
     # lawnmower's turns move it about, below the steady value

@@ -11,7 +11,7 @@ import torch
 from quadwind_trl.config import EnvConfig, TurbulenceConfig, VehicleConfig
 from quadwind_trl.envs import QuadWindEnv, make_scenarios
 from quadwind_trl.envs.scenarios import RegimeRanges
-from quadwind_trl.envs.trajectories import TRAJECTORIES
+from quadwind_trl.envs.trajectories import trajectory_names
 from quadwind_trl.modules.wind_estimator import EstimatorBundle
 from quadwind_trl.rl.ppo import load_policy
 
@@ -26,7 +26,7 @@ BAD_SCENARIOS = [
     ("intensity 1.7", lambda: make_scenarios(4, turb_intensity=1.7), ValueError, ["turb_intensity", "1.7", "[0, 1]"]),
     ("altitude -40 m", lambda: make_scenarios(4, altitude_m=-40.0), ValueError, ["altitude_m", "=-40 ", "[0, 3000]"]),
     ("length scale -80 m", lambda: make_scenarios(4, turb_length_scale_m=-80.0), ValueError, ["turb_length_scale_m", "=-80 "]),
-    ("unknown trajectory", lambda: make_scenarios(4, traj_id="figure9"), ValueError, ["traj_id", "figure9", *TRAJECTORIES]),
+    ("unknown trajectory", lambda: make_scenarios(4, traj_id="figure9"), ValueError, ["traj_id", "figure9", *trajectory_names()]),
     ("trajectory id 42", lambda: make_scenarios(4, traj_id=42), ValueError, ["traj_id", "42", "lawnmower_h"]),
     ("stability 5", lambda: make_scenarios(4, stability=5), ValueError, ["stability", "5", "neutral", "convective"]),
     ("wrong-length seed list", lambda: make_scenarios(4, turb_seed=[1, 2, 3]), ValueError, ["turb_seed", "(3,)", "4 values"]),
@@ -134,6 +134,6 @@ def test_checkpoints_carry_a_kind_and_old_ones_still_load(tmp_path):
 def test_valid_inputs_pass_unchanged():
     sc = make_scenarios(2, traj_id=["lawnmower_h", "figure8_h"], altitude_m=100.0, wind_speed_ref_m_s=8.0,
                         turb_intensity=0.15, turb_seed=[1, 2], sensor_seed=[3, 4], start_step=-1)
-    assert sc["traj_id"].tolist() == [TRAJECTORIES.index("lawnmower_h"), TRAJECTORIES.index("figure8_h")]
+    assert sc["traj_id"].tolist() == [4, 2]  # the built-in ids never change: datasets and results hold them
     assert sc["turb_seed"].dtype == torch.int64 and sc["altitude_m"].dtype == torch.float32
     EnvConfig().validate()

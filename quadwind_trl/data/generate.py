@@ -46,7 +46,7 @@ from ..config import EnvConfig, TrajectoryConfig, config_to_dict
 from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
 from ..envs.scenarios import SCENARIO_FIELDS, RegimeRanges, cross_with_trajectories, sample_regimes
-from ..envs.trajectories import HORIZONTAL, TRAJECTORIES, VERTICAL
+from ..envs.trajectories import HORIZONTAL, VERTICAL, trajectory_names
 from .features import RAW_RECORD_KEYS, RAW_RECORD_SIZES
 
 Regime = Literal["horizontal", "vertical"]
@@ -293,7 +293,8 @@ def _generate(out: Path, tmp: Path, spec: GenerationSpec, max_batch: int, device
             "record_length": t_len,
             "record_dt_s": spec.config.timing.log_dt_s,
             "trajectories": list(spec.trajectories),
-            "trajectory_ids": {name: TRAJECTORIES.index(name) for name in spec.trajectories},
+            # the stored traj_id values mean these names (load_dataset checks them against the registry)
+            "trajectory_ids": {name: trajectory_names().index(name) for name in spec.trajectories},
             "raw_record_keys": list(RAW_RECORD_KEYS),
             "ranges": asdict(spec.regime_ranges),
             "config": config_to_dict(spec.config),
@@ -371,7 +372,19 @@ def load_dataset(path: str | os.PathLike) -> tuple[TensorDict, dict]:
     manifest = json.loads((path / "manifest.json").read_text())
     if manifest.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"{path}: dataset format {manifest.get('format_version')}, this code reads {FORMAT_VERSION}")
+    _check_trajectory_ids(path, manifest["trajectory_ids"])
     return TensorDict.load_memmap(path / "data"), manifest
+
+
+def _check_trajectory_ids(path: Path, stored: dict[str, int]) -> None:
+    """The dataset's ``traj_id`` values mean the manifest's names: they must be registered under
+    the same ids now (a user pattern registered in another order would change its id)."""
+    names = trajectory_names()
+    differ = {name: i for name, i in stored.items() if (names.index(name) if name in names else None) != i}
+    if differ:
+        raise ValueError(f"{path}: trajectory ids {differ} (manifest 'trajectory_ids') are not the registered ones "
+                         f"({', '.join(f'{i} {n}' for i, n in enumerate(names))}); register the dataset's patterns "
+                         "in the order they were registered when it was made")
 
 
 def describe(data: TensorDict, manifest: dict) -> str:

@@ -20,7 +20,7 @@ from torch import Tensor
 from torch.utils.data import Dataset, Sampler
 
 from ..config import TrajectoryConfig
-from ..envs.trajectories import TRAJECTORIES, VERTICAL
+from ..envs.trajectories import fixed_altitude_mask
 from .features import FeatureExtractor
 
 WINDOW = 60  # paper: 60 samples = 6 s at 10 Hz
@@ -54,8 +54,8 @@ def crop_start(
     vertical trajectory's climb *is* the flight (its label varies with altitude on purpose), so
     for it ``z = 0``: the crop drops only the take-off transient, the first ``t_min`` seconds.
     """
-    vertical = torch.tensor([name in VERTICAL for name in TRAJECTORIES])[traj_id.long().cpu()].to(traj_id.device)
-    climb_s = torch.where(vertical, 0.0, altitude_m.to(torch.float64) / traj.climb_rate_m_s)
+    climbing = ~fixed_altitude_mask(traj_id.device)[traj_id.long()]
+    climb_s = torch.where(climbing, 0.0, altitude_m.to(torch.float64) / traj.climb_rate_m_s)
     t_crop = torch.clamp_min(climb_s + t_safety_s(traj, settle_s), t_min_s)
     return torch.ceil(t_crop / log_dt_s - 1e-9).to(torch.int64)
 

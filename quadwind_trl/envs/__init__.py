@@ -14,7 +14,18 @@ Frames and conventions, fixed once for the whole project:
 from .quad_env import QuadWindEnv, ScenarioSampler
 from .scenarios import RegimeRanges, make_scenarios, sample_regimes
 from .simulator import QuadSimulator
-from .trajectories import HORIZONTAL, HOVER, TRAJECTORIES, TRAJECTORY_IDS, VERTICAL
+from .trajectories import (
+    HORIZONTAL,
+    HOVER,
+    VERTICAL,
+    ClimbingPattern,
+    LevelPattern,
+    Pattern,
+    register_trajectory,
+    trajectory_ids,
+    trajectory_name,
+    trajectory_names,
+)
 
 __all__ = [
     "QuadWindEnv",
@@ -26,6 +37,11 @@ __all__ = [
     "HORIZONTAL",
     "HOVER",
     "VERTICAL",
-    "TRAJECTORIES",
-    "TRAJECTORY_IDS",
+    "Pattern",
+    "LevelPattern",
+    "ClimbingPattern",
+    "register_trajectory",
+    "trajectory_names",
+    "trajectory_name",
+    "trajectory_ids",
 ]

@@ -56,7 +56,7 @@ from torch import Tensor
 from ..config import TurbulenceConfig, WindProfileConfig
 from .counter_rng import hash_bits, hash_normal, hash_uniform
 from .rotations import quat_to_rotmat
-from .trajectories import FIXED_ALTITUDE, TRAJECTORIES
+from .trajectories import fixed_altitude_mask
 
 VON_KARMAN_KE_L = 0.746834  # k_e L: peak wavenumber of the von Karman energy spectrum
 VON_KARMAN_NORM = 1.452762  # makes the energy spectrum integrate to 3/2 sigma^2
@@ -162,7 +162,7 @@ class Atmosphere:
         self.stability_ratios = torch.tensor(
             [(1.0, v, w) for v, w in turbulence.stability_ratios], dtype=torch.float32, device=self.device
         )
-        self._fixed_altitude = torch.tensor([name in FIXED_ALTITUDE for name in TRAJECTORIES], device=self.device)
+        self._fixed_altitude = fixed_altitude_mask(self.device)
 
     # --- per-episode parameters ---------------------------------------------------------------
 

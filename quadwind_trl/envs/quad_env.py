@@ -10,11 +10,11 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
-from ..validation import check_action, trajectory_id, validate_scenarios
+from ..validation import check_action, validate_scenarios
 from .scenarios import SCENARIO_FIELDS, RegimeRanges, make_scenarios, random_scenarios
 from .sensors import NUM_SENSOR_CHANNELS
 from .simulator import QuadSimulator, merge_rows
-from .trajectories import HORIZONTAL, TRAJECTORY_IDS
+from .trajectories import HORIZONTAL, trajectory_ids
 
 
 @dataclass(frozen=True)
@@ -31,13 +31,12 @@ class ScenarioSampler:
     start: Literal["ground", "pattern"] = "ground"
 
     def __post_init__(self):
-        for name in self.trajectories:
-            trajectory_id(name)
+        trajectory_ids(self.trajectories)  # fails early on an unknown name, listing the registered
         if self.start not in ("ground", "pattern"):
             raise ValueError(f"ScenarioSampler.start={self.start!r}; allowed: 'ground', 'pattern'")
 
     def __call__(self, key: torch.Tensor, counter: torch.Tensor) -> TensorDict:
-        ids = torch.tensor([TRAJECTORY_IDS[t] for t in self.trajectories], device=key.device)
+        ids = trajectory_ids(self.trajectories, key.device)
         sc = random_scenarios(key, counter, self.ranges, ids)
         if self.start == "pattern":
             sc["start_step"] = torch.full_like(sc["start_step"], -1)

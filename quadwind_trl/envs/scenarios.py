@@ -14,7 +14,7 @@ from tensordict import TensorDict
 
 from ..validation import as_field_tensor, trajectory_id, validate_ranges, validate_scenarios
 from .counter_rng import hash_bits, hash_uniform
-from .trajectories import HORIZONTAL, TRAJECTORY_IDS
+from .trajectories import HORIZONTAL, trajectory_ids
 
 # name -> (dtype, default)
 SCENARIO_FIELDS: dict[str, tuple[torch.dtype, float | int]] = {
@@ -107,8 +107,12 @@ def wind_ceiling_bound(ranges: RegimeRanges, alpha: torch.Tensor, altitude: torc
     return torch.minimum(torch.full_like(alpha, ranges.wind_speed_m_s[1]), ranges.wind_ceiling_m_s / factor)
 
 
-def _regimes_from_unit(u: torch.Tensor, ranges: RegimeRanges, **fields) -> TensorDict:
-    """Map unit-cube points ``[n, >= dims]`` to wind regimes; ``fields`` adds other scenario fields."""
+def regimes_from_unit(u: torch.Tensor, ranges: RegimeRanges, *, check: bool = False, **fields) -> TensorDict:
+    """Map unit-cube points ``[n, >= dims]`` to wind regimes; ``fields`` adds other scenario fields
+    or replaces drawn ones (a factorial sweep sets the wind speed and intensity itself).
+
+    ``check=False`` (the samplers): every drawn value lies within ``ranges``, checked when they
+    were made; pass ``check=True`` when ``fields`` brings values from elsewhere."""
     n = u.shape[0]
 
     def scale(col: int, bounds: tuple[float, float]) -> torch.Tensor:
@@ -121,10 +125,7 @@ def _regimes_from_unit(u: torch.Tensor, ranges: RegimeRanges, **fields) -> Tenso
         altitude = scale(6, ranges.altitude_m)
     lower = ranges.wind_speed_m_s[0]
     upper = wind_ceiling_bound(ranges, alpha, altitude)
-    return make_scenarios(
-        n,
-        device=u.device,
-        check=False,  # every value lies within ``ranges``, checked when they were made
+    drawn = dict(
         wind_speed_ref_m_s=lower + u[:, 0] * (upper - lower).clamp_min(0.0),
         wind_dir_deg=scale(1, ranges.wind_dir_deg),
         turb_intensity=scale(2, ranges.intensity),
@@ -132,8 +133,8 @@ def _regimes_from_unit(u: torch.Tensor, ranges: RegimeRanges, **fields) -> Tenso
         veer_deg_per_100m=scale(4, ranges.veer_deg_per_100m),
         turb_length_scale_m=scale(5, ranges.length_scale_m),
         altitude_m=altitude,
-        **fields,
     )
+    return make_scenarios(n, device=u.device, check=check, **{**drawn, **fields})
 
 
 def sample_regimes(n: int, ranges: RegimeRanges, seed: int) -> TensorDict:
@@ -141,7 +142,7 @@ def sample_regimes(n: int, ranges: RegimeRanges, seed: int) -> TensorDict:
     stability regime cycled neutral/stable/convective by case index, and per-case seeds."""
     index = torch.arange(n)
     seeds = hash_bits(torch.full((n,), seed, dtype=torch.int64), index, stream=301, num=2) & 0x7FFFFFFF
-    return _regimes_from_unit(
+    return regimes_from_unit(
         latin_hypercube(n, ranges.dims, seed), ranges, stability=index % 3, turb_seed=seeds[:, 0], sensor_seed=seeds[:, 1]
     )
 
@@ -151,7 +152,7 @@ def cross_with_trajectories(cases: TensorDict, trajectories: tuple[str, ...] = H
     case-major, with a ``case_id`` entry for splitting by wind case."""
     n, t = cases.batch_size[0], len(trajectories)
     out = cases.unsqueeze(1).expand(n, t).clone().reshape(n * t)
-    ids = torch.tensor([TRAJECTORY_IDS[name] for name in trajectories], device=cases.device)
+    ids = trajectory_ids(trajectories, cases.device)
     out["traj_id"] = ids.repeat(n)
     out["case_id"] = torch.arange(n, device=cases.device).repeat_interleave(t)
     return out
@@ -163,6 +164,6 @@ def random_scenarios(key: torch.Tensor, counter: torch.Tensor, ranges: RegimeRan
     u = hash_uniform(key, counter, stream=302, num=ranges.dims + 1).to(torch.float64)
     bits = hash_bits(key, counter, stream=303, num=3) & 0x7FFFFFFF
     pick = (u[:, ranges.dims] * traj_ids.numel()).long().clamp_max(traj_ids.numel() - 1)
-    return _regimes_from_unit(
+    return regimes_from_unit(
         u, ranges, traj_id=traj_ids[pick], stability=bits[:, 2] % 3, turb_seed=bits[:, 0], sensor_seed=bits[:, 1]
     )

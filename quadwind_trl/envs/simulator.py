@@ -27,15 +27,16 @@ from .navigation import NavigationParams, init_navigation, update_navigation
 from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse, rotmat_from_euler
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
-from .trajectories import TrajectoryLibrary
+from .trajectories import TrajectoryLibrary, registered_patterns
 from .vehicle import RigidBody, VehicleParams, allocate, physics_step
 
 _TRAJECTORY_CACHE: dict = {}
 
 
 def trajectory_library(cfg: EnvConfig, device: torch.device) -> TrajectoryLibrary:
-    """Trajectory tables are built once per (config, device) in a process."""
-    key = (cfg.trajectories, cfg.timing, str(device))
+    """Trajectory tables are built once per (config, device, registered patterns) in a process:
+    a pattern registered later gets new tables."""
+    key = (cfg.trajectories, cfg.timing, str(device), tuple(registered_patterns().items()))
     if key not in _TRAJECTORY_CACHE:
         _TRAJECTORY_CACHE[key] = TrajectoryLibrary(
             cfg.trajectories, cfg.timing.control_dt_s, device, align_steps=cfg.timing.log_every_control_steps

@@ -21,7 +21,7 @@ from tensordict import TensorDict, TensorDictBase
 
 from ..config import EnvConfig, config_from_dict
 from ..envs.runner import FlightResults, fly
-from ..envs.trajectories import TRAJECTORIES
+from ..envs.trajectories import trajectory_name
 from ..modules.wind_estimator import EstimatorBundle
 from ..regimes import EvalSweep
 from .grouping import summarize
@@ -116,11 +116,14 @@ def summarize_ablation(sweep: EvalSweep, scenarios: TensorDictBase, results: dic
             block["decomposition"] = decompose(table[f"pd_{metric}"], table[f"blind_{metric}"], table[f"aware_{metric}"]).as_dict()
             block["by_wind"] = {f"{k:g}": v for k, v in _grouped_decomposition(table, metric, table["wind_speed_ref_m_s"]).items()}
             block["by_trajectory"] = {
-                TRAJECTORIES[int(k)]: v for k, v in _grouped_decomposition(table, metric, table["traj_id"]).items()
+                trajectory_name(k): v for k, v in _grouped_decomposition(table, metric, table["traj_id"]).items()
             }
         block["median"] = {name: table[f"{name}_{metric}"].median().item() for name in results}
         block["worst"] = {name: table[f"{name}_{metric}"].max().item() for name in results}
         summary[metric] = block
     summary["crashed"] = {name: int(table[f"{name}_crashed"].sum()) for name in results}
-    summary["episodes_table"] = {key: table[key].tolist() for key in table.keys()}
+    episodes = {key: table[key].tolist() for key in table.keys()}
+    # persisted by name: an id is only a position in this process's registry
+    episodes["trajectory"] = [trajectory_name(i) for i in episodes.pop("traj_id")]
+    summary["episodes_table"] = episodes
     return summary

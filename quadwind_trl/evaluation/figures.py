@@ -12,7 +12,8 @@ import torch  # noqa: E402
 from tensordict import TensorDictBase  # noqa: E402
 
 from ..envs.runner import FlightResults  # noqa: E402
-from ..envs.trajectories import TRAJECTORIES, TRAJECTORY_IDS  # noqa: E402
+from ..envs.trajectories import trajectory_name  # noqa: E402
+from ..validation import trajectory_id  # noqa: E402
 
 COLORS = {"pd": "tab:red", "blind": "tab:orange", "aware": "tab:blue", "oracle": "tab:green"}
 LABELS = {"pd": "PD baseline", "blind": "wind-blind RL", "aware": "wind-aware RL", "oracle": "true-wind oracle"}
@@ -27,7 +28,17 @@ def _save(fig, path: Path) -> Path:
 
 
 def _table(summary: dict) -> dict[str, np.ndarray]:
-    return {k: np.asarray(v) for k, v in summary["episodes_table"].items()}
+    """The per-episode columns, trajectories by name (results written before names were stored
+    hold ``traj_id``, the ids of the built-in patterns, which the registry keeps)."""
+    table = dict(summary["episodes_table"])
+    if "trajectory" not in table:
+        table["trajectory"] = [trajectory_name(i) for i in table.pop("traj_id")]
+    return {k: np.asarray(v) for k, v in table.items()}
+
+
+def _trajectories(t: dict[str, np.ndarray]) -> list[str]:
+    """The table's trajectories in the order they first appear (the sweep's order)."""
+    return list(dict.fromkeys(t["trajectory"].tolist()))
 
 
 def _by_wind(summary: dict, metric: str) -> tuple[np.ndarray, dict]:
@@ -87,18 +98,18 @@ def decomposition(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
     d = ax[1, 1]
     t = _table(summary)
     strongest = t["wind_speed_ref_m_s"] == t["wind_speed_ref_m_s"].max()
-    ids = np.unique(t["traj_id"])
+    names = _trajectories(t)
     for k, name in enumerate(("pd", "blind", "aware")):
-        vals = [t[f"{name}_{metric}"][strongest & (t["traj_id"] == i)].mean() for i in ids]
-        d.bar(np.arange(len(ids)) + (k - 1) * 0.27, vals, 0.27, color=COLORS[name], label=LABELS[name])
-    d.set_xticks(np.arange(len(ids)), [TRAJECTORIES[int(i)] for i in ids], rotation=20)
+        vals = [t[f"{name}_{metric}"][strongest & (t["trajectory"] == traj)].mean() for traj in names]
+        d.bar(np.arange(len(names)) + (k - 1) * 0.27, vals, 0.27, color=COLORS[name], label=LABELS[name])
+    d.set_xticks(np.arange(len(names)), names, rotation=20)
     d.set(ylabel="mean RMSE (m)", title=f"by trajectory at U = {t['wind_speed_ref_m_s'].max():g} m/s")
     d.legend()
     return _save(fig, path)
 
 
 def _pick(scenarios: TensorDictBase, traj: str, wind: float) -> int:
-    m = (scenarios["traj_id"] == TRAJECTORY_IDS[traj]) & (scenarios["wind_speed_ref_m_s"] == wind)
+    m = (scenarios["traj_id"] == trajectory_id(traj)) & (scenarios["wind_speed_ref_m_s"] == wind)
     rows = torch.nonzero(m).flatten()
     return int(rows[len(rows) // 2])
 
@@ -190,11 +201,11 @@ def ood_panel(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
     c.set(xlabel="PD RMSE (m)", ylabel="wind-aware RL RMSE (m)", xscale="log", yscale="log",
           title=f"{(aw < pd_).sum()}/{len(pd_)} below the diagonal")
     d = ax[1, 1]
-    ids = np.unique(t["traj_id"])
+    names = _trajectories(t)
     for k, name in enumerate(("pd", "aware")):
-        d.bar(np.arange(len(ids)) + (k - 0.5) * 0.4, [t[f"{name}_{metric}"][t["traj_id"] == i].mean() for i in ids], 0.4,
-              color=COLORS[name], label=LABELS[name])
-    d.set_xticks(np.arange(len(ids)), [TRAJECTORIES[int(i)] for i in ids], rotation=20)
+        d.bar(np.arange(len(names)) + (k - 0.5) * 0.4, [t[f"{name}_{metric}"][t["trajectory"] == traj].mean() for traj in names],
+              0.4, color=COLORS[name], label=LABELS[name])
+    d.set_xticks(np.arange(len(names)), names, rotation=20)
     d.set(ylabel="mean RMSE (m)", title="by trajectory")
     d.legend()
     return _save(fig, path)

@@ -10,7 +10,7 @@ from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
 from ..envs.runner import fly
-from ..envs.trajectories import TRAJECTORIES
+from ..envs.trajectories import trajectory_name
 from ..regimes import EvalSweep
 from .grouping import group_stats, summarize
 
@@ -44,7 +44,7 @@ def tracking_tables(episodes: TensorDictBase, metric: str = "rmse_xy") -> dict:
         "metric": metric,
         "all": summarize(values).as_dict(),
         "by_wind": {f"{k:g}": v.as_dict() for k, v in by_wind.items()},
-        "by_trajectory": {TRAJECTORIES[int(k)]: v.as_dict() for k, v in by_traj.items()},
+        "by_trajectory": {trajectory_name(k): v.as_dict() for k, v in by_traj.items()},
         "crashed": int(episodes["crashed"].sum()),
     }
 

@@ -301,14 +301,14 @@ class PPOTrainer:
         """Mean episode length (env steps) of the training trajectories: the range of the
         first-episode de-synchronisation."""
         from ..envs.simulator import trajectory_library
-        from ..envs.trajectories import TRAJECTORY_IDS
+        from ..envs.trajectories import trajectory_ids
         from .envs import DEFAULT_RANGES, DEFAULT_TRAJECTORIES
 
         s = self.spec
         traj = s.trajectories or DEFAULT_TRAJECTORIES[s.regime]
         ranges = s.ranges or DEFAULT_RANGES[s.regime]
         alt = 0.5 * sum(ranges.altitude_m) if ranges.altitude_m is not None else ranges.top_altitude_m
-        ids = torch.tensor([TRAJECTORY_IDS[t] for t in traj])
+        ids = trajectory_ids(traj)
         start, end = trajectory_library(s.env_config, "cpu").schedule(ids, torch.full((len(traj),), float(alt)))
         steps = end - start if s.start == "pattern" else end
         return max(1, int(steps.float().mean()) // s.env_config.residual.hold_control_steps)

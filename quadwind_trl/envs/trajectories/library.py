@@ -1,0 +1,155 @@
+"""The trajectory library: every registered pattern tabulated at the control rate, batched by
+integer id.
+
+Each pattern (:mod:`.base`) is a closed-form planar path ``P(s)`` (by arc length, or by phase for the
+lemniscate and the rose) flown with a progress ``s(t)`` that ramps smoothly from hover to
+cruise speed. Position, velocity, acceleration and jerk are the exact time derivatives of that
+closed form, taken by forward-mode automatic differentiation in float64 when the library is
+built, and tabulated at the control instants: the controller only ever reads the reference at
+those instants, so a gather replaces nine pattern evaluations per step without approximating
+anything.
+
+Timeline of a flight (``t`` from the episode start, ``t_arm`` the arming time):
+
+* horizontal (and ``hover``, a station-keeping reference for tests): on the ground until ``t_arm``; a smooth vertical climb at ``climb_rate_m_s`` to the
+  flight's own altitude (per episode); then the pattern, from hover, at that altitude for
+  ``horizontal_duration_s``. The climb is analytic at run time because its length depends on the
+  altitude; the pattern comes from the table.
+* vertical: on the ground until ``t_arm``; the pattern's own climb to ``vertical_top_m`` (the
+  table includes it), then a short hover at the top.
+
+The reference heading follows the path tangent (held while the path has no horizontal
+tangent), as a survey vehicle with a forward camera flies.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ...config import TrajectoryConfig
+from .base import Pattern, fixed_altitude_mask, registered_patterns
+from .profiles import climb_profile, ramp_integral, smoothstep
+
+
+def _progress_rate(pattern: Pattern) -> float:
+    """ds/dt at cruise: the speed for arc-length paths; for phase paths the rate whose fastest
+    point is at that speed (a phase-timed lemniscate is 1.46 times faster at its crossing than
+    at its ends: timed by its mean speed it would fly well beyond cruise speed there)."""
+    if not pattern.by_phase or pattern.speed == 0:
+        return pattern.speed
+    phases = torch.linspace(0, 2 * math.pi, 4097, dtype=torch.float64)[:-1]
+    tangent = torch.vmap(torch.func.jacfwd(pattern.path))(phases)
+    return pattern.speed / tangent.norm(dim=-1).max().item()
+
+
+def _tabulate(pattern: Pattern, cfg: TrajectoryConfig, dt: float) -> Tensor:
+    """``[T, 14]`` float64: pos(3) vel(3) acc(3) jerk(3) yaw yaw_rate at ``t = k dt``."""
+    rate = _progress_rate(pattern)
+    ramp = cfg.speed_ramp_s
+
+    def position(t: Tensor) -> Tensor:
+        s = rate * ramp_integral(t, ramp)
+        xy = pattern.path(s)
+        if pattern.climb_rate > 0:
+            z = climb_profile(t, t.new_tensor(pattern.climb_to), pattern.climb_rate, cfg.climb_blend_s)[0]
+        else:
+            z = t * 0
+        return torch.cat((xy, z.reshape(1)))
+
+    d1 = torch.func.jacfwd(position)
+    d2 = torch.func.jacfwd(d1)
+    d3 = torch.func.jacfwd(d2)
+    steps = int(round(pattern.duration / dt))
+    t = torch.arange(steps, dtype=torch.float64) * dt
+    chunks = []
+    for tc in t.split(40000):
+        chunks.append(torch.cat([torch.vmap(f)(tc) for f in (position, d1, d2, d3)], -1))
+    kin = torch.cat(chunks)
+
+    # heading along the path tangent (defined even at rest), unwrapped; its rate by the chain rule
+    s = rate * ramp_integral(t, ramp)
+    tangent = torch.vmap(torch.func.jacfwd(pattern.path))(s)
+    curvature_term = torch.vmap(torch.func.jacfwd(torch.func.jacfwd(pattern.path)))(s)
+    tx, ty = tangent.unbind(-1)
+    cx, cy = curvature_term.unbind(-1)
+    norm2 = tx * tx + ty * ty
+    has_heading = norm2 > 1e-12
+    yaw = torch.where(has_heading, torch.atan2(ty, tx), torch.zeros_like(tx))
+    yaw = torch.from_numpy(np.unwrap(yaw.numpy()))
+    s_dot = rate * smoothstep(t / ramp)
+    yaw_rate = torch.where(has_heading, (tx * cy - ty * cx) / norm2.clamp_min(1e-12) * s_dot, 0.0)
+    return torch.cat((kin, yaw[:, None], yaw_rate[:, None]), -1)
+
+
+@dataclass
+class Reference:
+    pos: Tensor  # [N, 3] m, world ENU
+    vel: Tensor  # [N, 3]
+    acc: Tensor  # [N, 3]
+    jerk: Tensor  # [N, 3]
+    yaw: Tensor  # [N, 1] rad
+    yaw_rate: Tensor  # [N, 1] rad/s
+
+
+class TrajectoryLibrary:
+    """Every registered pattern (:mod:`.base`), tabulated at the control rate on ``device``; row
+    ``traj_id`` of the tables is the pattern of that id.
+
+    ``schedule`` is called once per episode (at reset) and ``reference`` every control step;
+    both are batched over sub-envs with different trajectories and altitudes.
+    """
+
+    def __init__(
+        self, cfg: TrajectoryConfig, control_dt_s: float, device: torch.device | str | None = None, align_steps: int = 10
+    ):
+        cfg.validate()
+        self.cfg = cfg
+        self.dt = control_dt_s
+        self.align_steps = align_steps  # pattern starts fall on the flight record's grid
+        registered = registered_patterns()
+        self.names = tuple(registered)
+        tables = [_tabulate(pattern(cfg), cfg, control_dt_s) for pattern in registered.values()]
+        longest = max(t.shape[0] for t in tables)
+        padded = [torch.cat((t, t[-1:].expand(longest - t.shape[0], -1))) for t in tables]
+        # the pattern holds its last sample past its end (never flown: episodes truncate there)
+        self.table = torch.stack(padded).to(torch.float32).to(device)  # [num_patterns, T, 14]
+        self.pattern_steps = torch.tensor([t.shape[0] for t in tables], dtype=torch.int64, device=device)
+        # fixed-altitude flights climb to their own altitude first; vertical ones climb in the pattern
+        self.fixed_altitude = fixed_altitude_mask(device)
+        self.arm_step = int(round(cfg.arm_time_s / control_dt_s))
+        if self.arm_step % align_steps:
+            raise ValueError(f"TrajectoryConfig.arm_time_s={cfg.arm_time_s} must fall on the {align_steps}-step log grid")
+
+    def schedule(self, traj_id: Tensor, altitude_m: Tensor) -> tuple[Tensor, Tensor]:
+        """``(pattern_start_step, end_step)`` per episode: the control step at which the pattern
+        table starts (after arming and, for horizontal flights, the climb) and the step at which
+        the flight ends."""
+        climb_s = torch.where(self.fixed_altitude[traj_id], altitude_m / self.cfg.climb_rate_m_s + self.cfg.climb_blend_s, 0.0)
+        start = self.arm_step + torch.ceil(climb_s / self.dt).to(torch.int64)
+        start = (start + self.align_steps - 1) // self.align_steps * self.align_steps
+        return start, start + self.pattern_steps[traj_id]
+
+    def reference(self, traj_id: Tensor, step: Tensor, pattern_start: Tensor, altitude_m: Tensor) -> Reference:
+        """The reference at control step ``step`` (all ``[N]``)."""
+        row = (step - pattern_start).clamp(0, self.table.shape[1] - 1)
+        entry = self.table[traj_id, row]  # [N, 14]
+        t_climb = (step - self.arm_step).to(torch.float32) * self.dt
+        height = torch.where(self.fixed_altitude[traj_id], altitude_m, 0.0)
+        z, vz, az, jz = climb_profile(t_climb, height, self.cfg.climb_rate_m_s, self.cfg.climb_blend_s)
+        climb = torch.stack((z, vz, az, jz), -1)  # [N, 4]
+        zero = torch.zeros_like(climb[..., :1])
+        kin = entry[..., :12] + torch.cat(
+            [torch.cat((zero, zero, climb[..., i : i + 1]), -1) for i in range(4)], -1
+        )
+        return Reference(
+            pos=kin[..., 0:3],
+            vel=kin[..., 3:6],
+            acc=kin[..., 6:9],
+            jerk=kin[..., 9:12],
+            yaw=entry[..., 12:13],
+            yaw_rate=entry[..., 13:14],
+        )
