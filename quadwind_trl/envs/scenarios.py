@@ -16,9 +16,13 @@ from ..validation import as_field_tensor, trajectory_id, validate_ranges, valida
 from .counter_rng import hash_bits, hash_uniform
 from .trajectories import HORIZONTAL, trajectory_ids
 
+# the atmospheric stability regimes a scenario's ``stability`` field indexes (validation names them;
+# TurbulenceConfig.stability_ratios holds one pair per regime, in this order)
+STABILITY_NAMES = ("neutral", "stable", "convective")
+
 # name -> (dtype, default)
 SCENARIO_FIELDS: dict[str, tuple[torch.dtype, float | int]] = {
-    "traj_id": (torch.int64, 0),
+    "traj_id": (torch.int64, 0),  # a registered pattern's id (envs/trajectories); make_scenarios also takes names
     "altitude_m": (torch.float32, 100.0),  # flight altitude of a horizontal pattern
     "wind_speed_ref_m_s": (torch.float32, 0.0),  # U_mean at z_ref
     "wind_dir_deg": (torch.float32, 0.0),  # direction the wind blows from, clockwise from north
@@ -26,12 +30,11 @@ SCENARIO_FIELDS: dict[str, tuple[torch.dtype, float | int]] = {
     "shear_alpha": (torch.float32, 0.14),
     "veer_deg_per_100m": (torch.float32, 0.0),
     "turb_length_scale_m": (torch.float32, 150.0),
-    "stability": (torch.int64, 0),  # 0 neutral, 1 stable, 2 convective
+    "stability": (torch.int64, 0),  # index into STABILITY_NAMES
     "turb_seed": (torch.int64, 0),
     "sensor_seed": (torch.int64, 0),
     "start_step": (torch.int64, 0),  # control step to start at: 0 on the ground, -1 at the pattern start
 }
-STABILITY_NAMES = ("neutral", "stable", "convective")
 
 
 def make_scenarios(batch: int, device: torch.device | str | None = None, *, check: bool = True, **fields) -> TensorDict:
