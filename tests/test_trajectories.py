@@ -10,24 +10,11 @@ import torch
 from torch import Tensor
 
 from conftest import quiet_config
-from quadwind_trl.envs import QuadWindEnv, make_scenarios
+from quadwind_trl.envs import LevelPattern, QuadWindEnv, make_scenarios, register_trajectory, trajectory_ids
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.simulator import trajectory_library
-from quadwind_trl.envs.trajectories import (
-    HORIZONTAL,
-    HOVER,
-    VERTICAL,
-    ClimbingPattern,
-    LevelPattern,
-    Pattern,
-    base,
-    fixed_altitude_mask,
-    ramp_integral,
-    register_trajectory,
-    trajectory_ids,
-    trajectory_name,
-    trajectory_names,
-)
+from quadwind_trl.envs.trajectories import HORIZONTAL, HOVER, VERTICAL, ClimbingPattern, Pattern, base
+from quadwind_trl.envs.trajectories import fixed_altitude_mask, ramp_integral, trajectory_name, trajectory_names
 from quadwind_trl.evaluation.figures import _table
 
 

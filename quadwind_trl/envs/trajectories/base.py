@@ -42,8 +42,9 @@ class Pattern(ABC):
     """The template of a trajectory pattern (one subclass per pattern).
 
     A subclass provides :meth:`path` and, unless it inherits them from :class:`LevelPattern` or
-    :class:`ClimbingPattern`, the properties ``speed`` and ``duration``. Sizes come from
-    ``self.cfg`` (a :class:`~quadwind_trl.config.TrajectoryConfig`) or from class attributes.
+    :class:`ClimbingPattern`, ``speed`` and ``duration`` (properties, or class attributes when
+    constant). Sizes come from ``self.cfg`` (a :class:`~quadwind_trl.config.TrajectoryConfig`)
+    or from class attributes.
     """
 
     by_phase: ClassVar[bool] = False  # progress s is a phase (rad) rather than an arc length (m)
@@ -87,6 +88,7 @@ class LevelPattern(Pattern):
 
     @property
     def duration(self) -> float:
+        """The pattern only: the climb to the episode's altitude comes before it (run-time analytic)."""
         return self.cfg.horizontal_duration_s
 
 
@@ -110,6 +112,7 @@ class ClimbingPattern(Pattern):
 
     @property
     def duration(self) -> float:
+        """The climb at its rate, the blend that ends it, then the hold at the top."""
         return self.cfg.vertical_top_m / self.climb_rate + self.cfg.climb_blend_s + self.cfg.vertical_hold_s
 
 

@@ -51,9 +51,7 @@ class Lawnmower(LevelPattern):
 
 @register_trajectory("vertical_climb")
 class VerticalClimb(ClimbingPattern):
-    @property
-    def speed(self) -> float:
-        return 0.0  # straight up: no horizontal motion
+    speed = 0.0  # straight up: no horizontal motion
 
     @property
     def climb_rate(self) -> float:
@@ -99,9 +97,7 @@ class LawnmowerScan(ClimbingPattern):
 class Hover(LevelPattern):
     """Station keeping at the episode's altitude: not in the paper's libraries; for tests and users."""
 
-    @property
-    def speed(self) -> float:
-        return 0.0
+    speed = 0.0
 
     @property
     def duration(self) -> float:
