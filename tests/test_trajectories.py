@@ -111,3 +111,11 @@ def test_persisted_ids_read_back_as_names():
     new = {"episodes_table": {"trajectory": ["loiter_circle_h", "lawnmower_h", "hover"], "pd_rmse": [1.0, 2.0, 3.0]}}
     for summary in (old, new):
         assert _table(summary)["trajectory"].tolist() == ["loiter_circle_h", "lawnmower_h", "hover"]
+
+
+def test_dataset_ids_are_checked_against_the_registry(tmp_path):
+    from quadwind_trl.data.generate import _check_trajectory_ids
+
+    _check_trajectory_ids(tmp_path, {"racetrack_h": 1, "figure8_3d": 7})
+    with pytest.raises(ValueError, match=r"trajectory ids \{'rounded_square': 10\}.*register the dataset's patterns"):
+        _check_trajectory_ids(tmp_path, {"racetrack_h": 1, "rounded_square": 10})

@@ -1,22 +1,22 @@
 """The trajectory library: every registered pattern tabulated at the control rate, batched by
 integer id.
 
-Each pattern (:mod:`.base`) is a closed-form planar path ``P(s)`` (by arc length, or by phase for the
-lemniscate and the rose) flown with a progress ``s(t)`` that ramps smoothly from hover to
-cruise speed. Position, velocity, acceleration and jerk are the exact time derivatives of that
-closed form, taken by forward-mode automatic differentiation in float64 when the library is
-built, and tabulated at the control instants: the controller only ever reads the reference at
-those instants, so a gather replaces nine pattern evaluations per step without approximating
+Each pattern (:mod:`.base`) is a closed-form planar path ``P(s)`` (by arc length, or by phase
+for the lemniscate and the rose) flown with a progress ``s(t)`` that ramps smoothly from hover
+to cruise speed. Position, velocity, acceleration and jerk are the exact time derivatives of
+that closed form, taken by forward-mode automatic differentiation in float64 when the library
+is built, and tabulated at the control instants: the controller only ever reads the reference
+at those instants, so a gather replaces the pattern evaluations per step without approximating
 anything.
 
 Timeline of a flight (``t`` from the episode start, ``t_arm`` the arming time):
 
-* horizontal (and ``hover``, a station-keeping reference for tests): on the ground until ``t_arm``; a smooth vertical climb at ``climb_rate_m_s`` to the
-  flight's own altitude (per episode); then the pattern, from hover, at that altitude for
-  ``horizontal_duration_s``. The climb is analytic at run time because its length depends on the
-  altitude; the pattern comes from the table.
-* vertical: on the ground until ``t_arm``; the pattern's own climb to ``vertical_top_m`` (the
-  table includes it), then a short hover at the top.
+* level patterns (the horizontal library and ``hover``): on the ground until ``t_arm``; a
+  smooth vertical climb at ``climb_rate_m_s`` to the flight's own altitude (per episode); then
+  the pattern, from hover, at that altitude for its duration. The climb is analytic at run time
+  because its length depends on the altitude; the pattern comes from the table.
+* climbing patterns (the vertical library): on the ground until ``t_arm``; the pattern's own
+  climb to ``vertical_top_m`` (the table includes it), then a short hover at the top.
 
 The reference heading follows the path tangent (held while the path has no horizontal
 tangent), as a survey vehicle with a forward camera flies.
