@@ -14,15 +14,10 @@ import torch
 
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, regime_config, untrained_estimator, vecnorm
-from quadwind_trl.rl.ppo import (
-    Curriculum,
-    PPOConfig,
-    PPOTrainer,
-    build_actor_critic,
-    default_eval_scenarios,
-    load_policy,
-    vertical_curriculum,
-)
+from quadwind_trl.rl.config import Curriculum, PPOConfig, vertical_curriculum
+from quadwind_trl.rl.paired import default_eval_scenarios
+from quadwind_trl.rl.policy import build_actor_critic, load_policy
+from quadwind_trl.rl.trainer import PPOTrainer
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -267,3 +267,25 @@ def pipeline_overview(path: Path) -> Path:
     arrow(0.47, 0.24, 0.56, 0.55, "trained weights")
     a.set(xlim=(0, 1), ylim=(0, 1), title="quadwind_trl: the two-stage wind-aware pipeline")
     return _save(fig, path)
+
+
+def ablation_figures(sweep: str, scenarios: TensorDictBase, results: dict[str, FlightResults], summary: dict,
+                     fig_dir: Path) -> list[Path]:
+    """The ablation's figures of one sweep (``summarize_ablation``'s ``summary`` and the flights
+    with their traces) in ``fig_dir``: horizontal and vertical tracking, decomposition and a trace
+    at the strongest wind; the out-of-distribution panel. Returns the paths written."""
+    if sweep == "horizontal":
+        return [
+            scatter_and_improvement(summary, fig_dir / "tracking_horizontal.png"),
+            decomposition(summary, fig_dir / "decomposition_horizontal.png"),
+            trace_top_down(scenarios, results, "lawnmower_h", float(scenarios["wind_speed_ref_m_s"].max()),
+                           fig_dir / "trace_lawnmower.png"),
+        ]
+    if sweep == "vertical":
+        return [
+            vertical_comparison(summary, fig_dir / "tracking_vertical.png"),
+            perception_share(summary, fig_dir / "decomposition_vertical.png"),
+            trace_3d(scenarios, results, "figure8_3d", float(scenarios["wind_speed_ref_m_s"].max()),
+                     fig_dir / "trace_figure8_3d.png"),
+        ]
+    return [ood_panel(summary, fig_dir / "ood.png")]
