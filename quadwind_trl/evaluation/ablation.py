@@ -2,7 +2,8 @@
 
 Every controller flies the same scenarios, in an env of the same batch size, so each episode's
 world (turbulence field, sensor noise and bias, initial state) is bitwise the same for all of
-them (``docs/simulator.md``, exact replay):
+them (``docs/simulator.md``, exact replay; the flights go through
+:func:`~quadwind_trl.rl.paired.fly_paired`, as the trainer's evaluation against PD does):
 
 * ``pd``: the wind-blind PD baseline (zero residual);
 * ``blind``: the trained policy with its two wind inputs forced to zero (``WindZero``): the same
