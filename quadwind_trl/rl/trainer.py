@@ -136,6 +136,8 @@ class PPOTrainer:
     # --- the loop ------------------------------------------------------------------------------
 
     def train(self, resume: bool = False) -> PPOResult:
+        """Train to ``cfg.total_frames`` (whole batches), from ``checkpoints/latest.pt`` with
+        ``resume``; writes the files listed above and returns the run's :class:`PPOResult`."""
         if self.cfg.threads:
             torch.set_num_threads(self.cfg.threads)
         session = self._start(self._check_resume(resume))
