@@ -29,18 +29,17 @@ from machine import load_1min, machine_line
 def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dict:
     from torchrl.collectors import Collector
     from torchrl.envs.utils import ExplorationType
-    from torchrl.objectives import ClipPPOLoss
-    from torchrl.objectives.value import GAE
 
-    from quadwind_trl.rl.envs import default_estimator_path, load_estimator, make_env, wind_estimate
-    from quadwind_trl.rl.ppo import PPOConfig, PPOTrainer, build_actor_critic
-    from quadwind_trl.rl.envs import RLEnvSpec
+    from quadwind_trl.rl.config import PPOConfig
+    from quadwind_trl.rl.envs import RLEnvSpec, default_estimator_path, load_estimator, make_env, wind_estimate
+    from quadwind_trl.rl.policy import build_actor_critic
+    from quadwind_trl.rl.trainer import episode_steps_hint
+    from quadwind_trl.rl.update import PPOUpdate
 
     torch.manual_seed(0)
     path = estimator_path or (str(default_estimator_path("horizontal")) if default_estimator_path("horizontal").exists() else None)
     bundle = load_estimator("horizontal", path, untrained=path is None)
-    hint = PPOTrainer(RLEnvSpec("horizontal"), PPOConfig(), "/nonexistent")._episode_steps_hint()
-    env = make_env("horizontal", bundle, n, desync_steps=hint)
+    env = make_env("horizontal", bundle, n, desync_steps=episode_steps_hint(RLEnvSpec("horizontal")))
     base = env.base_env
     sim_time = [0.0]
     raw_step = base._sim_step
@@ -66,25 +65,8 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     actor, value = build_actor_critic(cfg)
     collector = Collector(env, actor, frames_per_batch=n * steps, total_frames=n * steps * (batches + 1),
                           exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
-    loss = ClipPPOLoss(actor, value, clip_epsilon=0.2, entropy_coeff=0.005, critic_coeff=0.5, loss_critic_type="l2",
-                       normalize_advantage=True)
-    gae = GAE(gamma=0.99, lmbda=0.95, value_network=value)
-    optim = torch.optim.Adam(loss.parameters(), lr=3e-4, eps=1e-5)
-    keys = ("observation", "action", "action_log_prob", ("next", "observation"), ("next", "reward"),
-            ("next", "done"), ("next", "terminated"), ("next", "truncated"))
-
-    def update(data) -> None:
-        batch = data.select(*keys)
-        with torch.no_grad():
-            gae(batch)
-        flat = batch.reshape(-1)
-        for _ in range(cfg.epochs):
-            for idx in torch.randperm(flat.batch_size[0]).split(cfg.minibatch):
-                out = loss(flat[idx])
-                optim.zero_grad()
-                (out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]).backward()
-                torch.nn.utils.clip_grad_norm_(loss.parameters(), cfg.max_grad_norm)
-                optim.step()
+    learner = PPOUpdate(actor, value, cfg)  # the trainer's update: GAE + epochs of minibatch ClipPPO steps
+    shuffle = torch.Generator().manual_seed(0)
 
     it = iter(collector)
     next(it)  # warm-up
@@ -97,7 +79,7 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
         t0 = time.perf_counter()
         data = next(it)
         t1 = time.perf_counter()
-        update(data)
+        learner.update(data, shuffle)
         collect_s, update_total = collect_s + t1 - t0, update_total + time.perf_counter() - t1
     sim_s, est_all_s, est_net_s = sim_time[0], tick_time[0], west.estimator_seconds
     collector.shutdown()

@@ -28,24 +28,6 @@ from quadwind_trl.rl.envs import load_estimator
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
 
 
-def draw(sweep: str, scenarios, results, summary, fig_dir: Path) -> list[Path]:
-    if sweep == "horizontal":
-        return [
-            figures.scatter_and_improvement(summary, fig_dir / "tracking_horizontal.png"),
-            figures.decomposition(summary, fig_dir / "decomposition_horizontal.png"),
-            figures.trace_top_down(scenarios, results, "lawnmower_h", float(scenarios["wind_speed_ref_m_s"].max()),
-                                   fig_dir / "trace_lawnmower.png"),
-        ]
-    if sweep == "vertical":
-        return [
-            figures.vertical_comparison(summary, fig_dir / "tracking_vertical.png"),
-            figures.perception_share(summary, fig_dir / "decomposition_vertical.png"),
-            figures.trace_3d(scenarios, results, "figure8_3d", float(scenarios["wind_speed_ref_m_s"].max()),
-                             fig_dir / "trace_figure8_3d.png"),
-        ]
-    return [figures.ood_panel(summary, fig_dir / "ood.png")]
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sweeps", nargs="+", default=list(SWEEPS), choices=list(SWEEPS))
@@ -79,7 +61,7 @@ def main() -> None:
         summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
                        estimator_manifest=estimator.manifest.get("metrics"), wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
-        paths = draw(name, scenarios, results, summary, fig_dir)
+        paths = figures.ablation_figures(name, scenarios, results, summary, fig_dir)
         aware = summary["rmse_xy"]["aware"]
         print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD, xy RMSE reduction: "
               f"{aware['improvement']:.1f} % (95 % CI {aware['ci_low']:.1f}-{aware['ci_high']:.1f}), "

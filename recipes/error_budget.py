@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.config import SENSING, SENSOR_PRESETS, EnvConfig, with_sensor_preset
-from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle
+from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle, summary_lines
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
@@ -61,18 +61,8 @@ def main() -> None:
     suffix = "" if args.sensors == "rtk" else f"_{args.sensors}"
     out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}{suffix}.json"
     write_json(out, budget)
-    for mode, cells in budget["pd"].items():
-        line = "; ".join(f"{wind}: PD xy {c['rmse_xy']:.3f} z {c['rmse_z']:.3f} m, nav error xy {c['nav_rmse_xy']:.3f} "
-                         f"z {c['nav_rmse_z']:.3f} m" for wind, c in cells.items())
-        if mode in budget["aware_vs_pd"]:
-            aware = budget["aware_vs_pd"][mode]["rmse_xy"]
-            line += f"; wind-aware vs PD xy {aware['improvement']:.1f} % (wins {aware['wins']}/{aware['n']})"
-        print(f"{mode:>10}: {line}")
-    if "navigation" in budget["pd"] and "full" in budget["pd"]["navigation"]:
-        nav = budget["pd"]["navigation"]["full"]
-        print(f"stationary navigation error ({args.sweep}, {args.sensors}): xy {nav['nav_rmse_xy']:.3f} m, "
-              f"z {nav['nav_rmse_z']:.3f} m; headroom xy {100 * (1 - nav['nav_rmse_xy'] / nav['rmse_xy']):.0f} %, "
-              f"z {100 * (1 - nav['nav_rmse_z'] / nav['rmse_z']):.0f} %")
+    for line in summary_lines(budget, args.sweep, args.sensors):
+        print(line)
     print(f"wrote {out} ({budget['wall_time_s']:.0f} s)")
 
 

@@ -23,8 +23,9 @@ import torch
 
 from quadwind_trl.config import SENSOR_PRESETS, EnvConfig, config_to_dict, with_sensor_preset
 from quadwind_trl.envs import QuadWindEnv
-from quadwind_trl.evaluation.tracking import fly_sweep, quick_config, quick_subset, tracking_tables
+from quadwind_trl.evaluation.tracking import fly_sweep, sweep_setup, tracking_tables
 from quadwind_trl.manifest import command_line, git_commit, write_json
+from quadwind_trl.quick import SWEEP_QUICK
 from quadwind_trl.regimes import SWEEPS
 
 
@@ -41,15 +42,12 @@ def main() -> None:
 
     cfg = with_sensor_preset(EnvConfig(), args.sensors)
     if args.quick:
-        cfg = quick_config(cfg)
-        print("--quick: horizontal patterns 10 s, vertical climbs to 30 m, flown from the pattern start; one seed and intensity per sweep")
+        cfg = SWEEP_QUICK.config(cfg)
+        print(f"--quick: {SWEEP_QUICK.describe()}; one seed and intensity per sweep")
     report = {"command": command_line(sys.argv), "git_commit": git_commit(), "sensors": args.sensors,
               "config": config_to_dict(cfg), "sweeps": {}}
     for name in args.sweeps:
-        sweep = SWEEPS[name]
-        scenarios = sweep.scenarios()
-        if args.quick:
-            scenarios = quick_subset(sweep, scenarios)
+        scenarios, _ = sweep_setup(SWEEPS[name], args.quick)  # the flights' change is in cfg already
         env = QuadWindEnv(cfg, batch_size=[scenarios.batch_size[0]], compile_step=args.compile)
         start = time.perf_counter()
         episodes = fly_sweep(env, scenarios, progress=True)

@@ -10,11 +10,10 @@ beside ours.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from quadwind_trl.evaluation.figures import learning_curves
-from quadwind_trl.evaluation.report import build_report
+from quadwind_trl.evaluation.report import build_report, policy_runs
 from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
 
 PREAMBLE = """# Results: ours beside the paper's
@@ -35,13 +34,7 @@ def main() -> None:
                              "their logs, which redraw figures/learning_curves.png beside --out")
     parser.add_argument("--toy", action="store_true", help="the --quick run's page: says so first, no paper columns")
     args = parser.parse_args()
-    manifests = {}
-    for regime in ("horizontal", "vertical"):
-        for path in (args.runs / f"ppo_{regime}" / "policy.json", CHECKPOINT_DIR / f"policy_{regime}.json"):
-            if path.exists():
-                manifests[regime] = json.loads(path.read_text())
-                break
-    runs = {r: args.runs / f"ppo_{r}" for r in manifests if (args.runs / f"ppo_{r}" / "logs").exists()}
+    manifests, runs = policy_runs(args.runs, CHECKPOINT_DIR)
     if runs:
         learning_curves(runs, args.out.parent / "figures" / "learning_curves.png")
     text = build_report(args.results, args.sections, PREAMBLE, manifests, toy=args.toy)

@@ -13,21 +13,22 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
 import torch
 
-from quadwind_trl.config import TrajectoryConfig
 from quadwind_trl.gym import ENV_IDS  # importing the module registers the env ids
+from quadwind_trl.quick import QuickFlights
 from quadwind_trl.rl.envs import regime_config
 
 
+QUICK = QuickFlights(pattern_s=10.0, vertical_top_m=15.0, vertical_hold_s=1.0)  # flights of seconds
+
+
 def short_flights(regime: str) -> dict:
-    """make_env keywords for flights of seconds, started at the pattern (a smoke run)."""
-    traj = replace(TrajectoryConfig(), horizontal_duration_s=10.0, vertical_top_m=15.0, vertical_hold_s=1.0)
-    return {"config": replace(regime_config(regime), trajectories=traj), "start": "pattern"}
+    """make_env keywords for :data:`QUICK` flights, started at the pattern (a smoke run)."""
+    return {"config": QUICK.config(regime_config(regime)), "start": "pattern"}
 
 
 def main() -> None:

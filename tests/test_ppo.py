@@ -14,15 +14,10 @@ import torch
 
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, regime_config, untrained_estimator, vecnorm
-from quadwind_trl.rl.ppo import (
-    Curriculum,
-    PPOConfig,
-    PPOTrainer,
-    build_actor_critic,
-    default_eval_scenarios,
-    load_policy,
-    vertical_curriculum,
-)
+from quadwind_trl.rl.config import Curriculum, PPOConfig, vertical_curriculum
+from quadwind_trl.rl.paired import default_eval_scenarios
+from quadwind_trl.rl.policy import build_actor_critic, load_policy
+from quadwind_trl.rl.trainer import PPOTrainer
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -178,3 +173,38 @@ def test_short_run_improves_mean_return(tmp_path, seed):
     rewards = [h["reward_mean"] for h in res.history]
     assert all(h["episodes_finished"] == 16 for h in res.history)  # one full episode per env and iteration
     assert sum(rewards[-2:]) / 2 > rewards[0], rewards
+
+
+def test_rl_does_not_import_evaluation():
+    """The dependency order is envs -> transforms -> rl -> evaluation -> recipes: the trainer's
+    paired evaluation flies through rl.paired, nothing in rl reaches up into evaluation."""
+    code = ("import sys, quadwind_trl.rl, quadwind_trl.rl.cli; "
+            "print([m for m in sys.modules if m.startswith('quadwind_trl.evaluation')])")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip() == "[]"
+
+
+def test_fly_paired_refuses_envs_of_different_batch_sizes():
+    from quadwind_trl.envs import QuadWindEnv
+    from quadwind_trl.rl.paired import fly_paired
+
+    cfg = regime_config("horizontal")
+    sc = default_eval_scenarios("horizontal", 2)
+    with pytest.raises(ValueError, match="batch size"):
+        fly_paired({"pd": (QuadWindEnv(cfg, batch_size=[2]), None), "other": (QuadWindEnv(cfg, batch_size=[1]), None)}, sc)
+
+
+def test_quick_flights_shorten_the_config_and_start_airborne():
+    from quadwind_trl.quick import PPO_QUICK, SWEEP_QUICK
+
+    cfg = regime_config("vertical")
+    short = PPO_QUICK["vertical"].config(cfg)
+    assert (short.trajectories.vertical_top_m, short.trajectories.vertical_hold_s) == (10.0, 1.0)
+    assert short.trajectories.horizontal_duration_s == cfg.trajectories.horizontal_duration_s  # None: unchanged
+    sc = default_eval_scenarios("vertical", 2)
+    top = DEFAULT_RANGES["vertical"].top_altitude_m
+    quick = SWEEP_QUICK.scenarios(sc, top)
+    assert (quick["start_step"] == -1).all() and torch.equal(quick["altitude_m"], sc["altitude_m"])  # climbs keep their top
+    assert PPO_QUICK["horizontal"].ranges(DEFAULT_RANGES["horizontal"]).altitude_m == (10.0, 10.0)
+    assert PPO_QUICK["vertical"].ranges(DEFAULT_RANGES["vertical"]) == DEFAULT_RANGES["vertical"]

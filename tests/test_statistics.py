@@ -5,7 +5,8 @@ import math
 
 import torch
 
-from quadwind_trl.evaluation.statistics import bootstrap_improvement_ci, decompose, improvement, win_rate
+from quadwind_trl.evaluation.statistics import bootstrap_improvement_ci, decompose
+from quadwind_trl.rl.paired import improvement, win_rate
 
 
 def test_decomposition_arithmetic_by_hand():

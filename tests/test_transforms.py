@@ -258,7 +258,8 @@ def test_raw_observation_matches_sensors_and_features():
 def test_zero_policy_reproduces_pd(bundle):
     """The full training stack with a policy whose output is forced to zero flies exactly the
     PD baseline of the bare env on the same scenarios (runner.fly, bit for bit)."""
-    from quadwind_trl.rl.ppo import PPOConfig, build_actor_critic
+    from quadwind_trl.rl.config import PPOConfig
+    from quadwind_trl.rl.policy import build_actor_critic
 
     cfg = short_config()
     sc = scenarios(3, start_step=-1)  # airborne at the pattern start (quicker)

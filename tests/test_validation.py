@@ -13,7 +13,7 @@ from quadwind_trl.envs import QuadWindEnv, make_scenarios
 from quadwind_trl.envs.scenarios import RegimeRanges
 from quadwind_trl.envs.trajectories import trajectory_names
 from quadwind_trl.modules.wind_estimator import EstimatorBundle
-from quadwind_trl.rl.ppo import load_policy
+from quadwind_trl.rl.policy import load_policy
 
 CHECKPOINTS = Path(__file__).resolve().parent.parent / "quadwind_trl" / "checkpoints"
 NAN = float("nan")

@@ -2,7 +2,8 @@
 
 Every controller flies the same scenarios, in an env of the same batch size, so each episode's
 world (turbulence field, sensor noise and bias, initial state) is bitwise the same for all of
-them (``docs/simulator.md``, exact replay):
+them (``docs/simulator.md``, exact replay; the flights go through
+:func:`~quadwind_trl.rl.paired.fly_paired`, as the trainer's evaluation against PD does):
 
 * ``pd``: the wind-blind PD baseline (zero residual);
 * ``blind``: the trained policy with its two wind inputs forced to zero (``WindZero``): the same
@@ -20,10 +21,13 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from ..config import EnvConfig, config_from_dict
-from ..envs.runner import FlightResults, fly
+from ..envs.runner import FlightResults
 from ..envs.trajectories import trajectory_name
 from ..modules.wind_estimator import EstimatorBundle
 from ..regimes import EvalSweep
+from ..rl.envs import make_env
+from ..rl.paired import fly_paired
+from ..rl.policy import load_policy
 from .grouping import summarize
 from .statistics import decompose, paired_summary
 
@@ -49,32 +53,23 @@ def fly_controllers(
     device: str = "cpu",
     config_override: Callable[[EnvConfig], EnvConfig] | None = None,
 ) -> dict[str, FlightResults]:
-    """Fly ``scenarios`` with each controller; results per controller, in scenario order.
+    """Fly ``scenarios`` with each controller (:func:`~quadwind_trl.rl.paired.fly_paired`);
+    results per controller, in scenario order.
 
     The env is the one the policy trained in (its config is in the checkpoint), unless
     ``config_override`` changes it (e.g. shorter flights for smoke runs)."""
-    from ..rl.envs import make_env
-    from ..rl.ppo import load_policy
-
     actor, payload = load_policy(policy_path, device=device)
     config = policy_env_config(payload)
     if config_override is not None:
         config = config_override(config)
     n = batch or scenarios.batch_size[0]
-    out = {}
-    for name in controllers:
-        env = make_env(
-            regime,
-            estimator if WIND_INPUT[name] != "truth" else None,
-            n,
-            wind_input=WIND_INPUT[name],
-            device=device,
-            config=config,
-            vecnorm_state=payload["vecnorm"],
-        )
-        policy = None if name == "pd" else actor
-        out[name] = fly(env, scenarios, policy=policy, log_keys=TRACE_KEYS, progress=progress)
-    return out
+    flights = {
+        name: (make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
+                        device=device, config=config, vecnorm_state=payload["vecnorm"]),
+               None if name == "pd" else actor)
+        for name in controllers
+    }
+    return fly_paired(flights, scenarios, log_keys=TRACE_KEYS, progress=progress)
 
 
 def _episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults]) -> TensorDict:

@@ -28,6 +28,7 @@ from ..config import SENSING, EnvConfig, Sensing, with_sensing
 from ..envs.runner import FlightResults
 from ..modules.wind_estimator import EstimatorBundle
 from .ablation import fly_controllers
+from .report import headroom_pct
 from .statistics import paired_summary
 
 Wind = Literal["full", "mean_only", "still"]
@@ -88,3 +89,22 @@ def error_budget(
                     for metric in ("rmse_xy", "rmse_z")
                 }
     return out
+
+
+def summary_lines(budget: dict, sweep: str, sensors: str) -> list[str]:
+    """A few printable lines: PD and its navigation error per (sensing, wind) cell, the wind-aware
+    policy against PD, and the stationary navigation error with its headroom."""
+    lines = []
+    for mode, cells in budget["pd"].items():
+        line = "; ".join(f"{wind}: PD xy {c['rmse_xy']:.3f} z {c['rmse_z']:.3f} m, nav error xy {c['nav_rmse_xy']:.3f} "
+                         f"z {c['nav_rmse_z']:.3f} m" for wind, c in cells.items())
+        if mode in budget["aware_vs_pd"]:
+            aware = budget["aware_vs_pd"][mode]["rmse_xy"]
+            line += f"; wind-aware vs PD xy {aware['improvement']:.1f} % (wins {aware['wins']}/{aware['n']})"
+        lines.append(f"{mode:>10}: {line}")
+    if "navigation" in budget["pd"] and "full" in budget["pd"]["navigation"]:
+        nav = budget["pd"]["navigation"]["full"]
+        lines.append(f"stationary navigation error ({sweep}, {sensors}): xy {nav['nav_rmse_xy']:.3f} m, "
+                     f"z {nav['nav_rmse_z']:.3f} m; headroom xy {headroom_pct(nav['nav_rmse_xy'], nav['rmse_xy']):.0f} %, "
+                     f"z {headroom_pct(nav['nav_rmse_z'], nav['rmse_z']):.0f} %")
+    return lines

@@ -278,3 +278,27 @@ def pipeline_overview(path: Path) -> Path:
     arrow(0.47, 0.24, 0.56, 0.55, "trained weights")
     a.set(xlim=(0, 1), ylim=(0, 1), title="quadwind_trl: the two-stage wind-aware pipeline")
     return _save(fig, path)
+
+
+# per sweep: the summary panels (drawer, file) and the trace at the strongest wind (drawer, trajectory, file)
+ABLATION_FIGURES = {
+    "horizontal": (((scatter_and_improvement, "tracking_horizontal.png"), (decomposition, "decomposition_horizontal.png")),
+                   (trace_top_down, "lawnmower_h", "trace_lawnmower.png")),
+    "vertical": (((vertical_comparison, "tracking_vertical.png"), (perception_share, "decomposition_vertical.png")),
+                 (trace_3d, "figure8_3d", "trace_figure8_3d.png")),
+    "ood": (((ood_panel, "ood.png"),), None),
+}
+
+
+def ablation_figures(sweep: str, scenarios: TensorDictBase, results: dict[str, FlightResults], summary: dict,
+                     fig_dir: Path) -> list[Path]:
+    """The ablation's figures of one sweep (``summarize_ablation``'s ``summary`` and the flights
+    with their traces) in ``fig_dir``, as :data:`ABLATION_FIGURES` lists them. Returns the paths."""
+    if sweep not in ABLATION_FIGURES:
+        raise ValueError(f"sweep={sweep!r}; allowed: {sorted(ABLATION_FIGURES)}")
+    panels, trace = ABLATION_FIGURES[sweep]
+    paths = [draw(summary, fig_dir / name) for draw, name in panels]
+    if trace is not None:
+        draw_trace, traj, name = trace
+        paths.append(draw_trace(scenarios, results, traj, float(scenarios["wind_speed_ref_m_s"].max()), fig_dir / name))
+    return paths

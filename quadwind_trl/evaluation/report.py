@@ -13,6 +13,12 @@ def _by_number(table: dict) -> list[tuple[str, dict]]:
     return sorted(table.items(), key=lambda kv: float(kv[0]))
 
 
+def headroom_pct(nav_rmse: float, rmse: float) -> float:
+    """``100 (1 - nav error / RMSE)``: about the largest improvement any controller could make
+    (the navigation error is what the vehicle cannot see)."""
+    return 100.0 * (1.0 - nav_rmse / rmse)
+
+
 def wall_time(seconds: float) -> str:
     """Seconds under two minutes (a toy run is never "0 min"), minutes above."""
     return f"{seconds:.0f} s" if seconds < 120 else f"{seconds / 60:.0f} min"
@@ -41,7 +47,7 @@ def pd_calibration_section(result: dict) -> str:
             return "- | -"
         n = nav[group][key]["mean"] if key != "all" else nav["all"]["mean"]
         ours = tables[f"rmse_{axis}"][group][key]["mean"] if key != "all" else tables[f"rmse_{axis}"]["all"]["mean"]
-        return f"{n:.3f} | {100 * (1 - n / ours):.0f} %"
+        return f"{n:.3f} | {headroom_pct(n, ours):.0f} %"
 
     if "horizontal" in sweeps:
         tables = sweeps["horizontal"]["tables"]
@@ -239,7 +245,7 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
             other = {w: f"{cells[w]['rmse_xy']:.3f}" if w in cells else "-" for w in ("mean_only", "still")}
             row = (f"| {SENSING_LABEL.get(mode, mode)} | {full['rmse_xy']:.3f} | {other['mean_only']} | {other['still']} | "
                    f"{full['nav_rmse_xy']:.3f} | {full['rmse_z']:.3f} | {full['nav_rmse_z']:.3f} | "
-                   f"{100 * (1 - full['nav_rmse_xy'] / full['rmse_xy']):.0f} % | {100 * (1 - full['nav_rmse_z'] / full['rmse_z']):.0f} % |")
+                   f"{headroom_pct(full['nav_rmse_xy'], full['rmse_xy']):.0f} % | {headroom_pct(full['nav_rmse_z'], full['rmse_z']):.0f} % |")
             if mode in b["aware_vs_pd"]:
                 xy, z = b["aware_vs_pd"][mode]["rmse_xy"], b["aware_vs_pd"][mode]["rmse_z"]
                 row += f" {xy['improvement']:.1f} % ({xy['ci_low']:.1f}-{xy['ci_high']:.1f}) | {xy['wins']}/{xy['n']} | {z['improvement']:.1f} % |"
@@ -295,10 +301,23 @@ def sensing_presets_section(results: dict[str, dict]) -> str:
             cells = []
             for axis in ("xy", "z"):
                 pd_, nav = t[f"rmse_{axis}"]["all"]["mean"], t[f"nav_rmse_{axis}"]["all"]["mean"]
-                cells.append(f"{pd_:.3f} | {nav:.3f} | {100 * (1 - nav / pd_):.0f} %")
+                cells.append(f"{pd_:.3f} | {nav:.3f} | {headroom_pct(nav, pd_):.0f} %")
             lines.append(f"| `{name}` | {sweep} | {' | '.join(cells)} |")
     lines.append("")
     return "\n".join(lines)
+
+
+def policy_runs(runs_dir: Path, shipped_dir: Path) -> tuple[dict[str, dict], dict[str, Path]]:
+    """Per regime, the PPO manifest to report (``RUNS/ppo_<regime>/policy.json``, else the shipped
+    ``policy_<regime>.json``) and the run directories whose logs can draw learning curves."""
+    manifests = {}
+    for regime in ("horizontal", "vertical"):
+        for path in (runs_dir / f"ppo_{regime}" / "policy.json", shipped_dir / f"policy_{regime}.json"):
+            if path.exists():
+                manifests[regime] = json.loads(path.read_text())
+                break
+    logged = {r: runs_dir / f"ppo_{r}" for r in manifests if (runs_dir / f"ppo_{r}" / "logs").exists()}
+    return manifests, logged
 
 
 def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None,

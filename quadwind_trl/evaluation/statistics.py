@@ -2,7 +2,10 @@
 ablation" and "Evaluation protocol").
 
 All inputs are per-episode RMSEs of matched episodes (the same scenarios, identical replayed
-physics), one tensor per controller, aligned by episode.
+physics), one tensor per controller, aligned by episode. The two paired statistics the trainer
+reports too, :func:`~quadwind_trl.rl.paired.improvement` and :func:`~quadwind_trl.rl.paired.win_rate`,
+live with the paired flights in :mod:`quadwind_trl.rl.paired`; this module adds the bootstrap
+interval, the decomposition and the full paired summary.
 """
 from __future__ import annotations
 
@@ -11,10 +14,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import Tensor
 
-
-def improvement(baseline: Tensor, other: Tensor) -> float:
-    """Reduction in mean RMSE, percent: ``100 (1 - mean(other) / mean(baseline))``."""
-    return 100.0 * (1.0 - other.double().mean().item() / baseline.double().mean().item())
+from ..rl.paired import improvement, win_rate
 
 
 def bootstrap_improvement_ci(
@@ -31,11 +31,6 @@ def bootstrap_improvement_ci(
     alpha = (1.0 - level) / 2.0
     lo, hi = torch.quantile(stats, torch.tensor([alpha, 1.0 - alpha], dtype=torch.float64)).tolist()
     return lo, hi
-
-
-def win_rate(baseline: Tensor, other: Tensor) -> tuple[int, int]:
-    """Pairs in which ``other`` has strictly lower RMSE than ``baseline``, and the pair count."""
-    return int((other < baseline).sum()), baseline.numel()
 
 
 @dataclass(frozen=True)

@@ -1,16 +1,15 @@
 """Fly evaluation sweeps and tabulate tracking RMSE by wind level and by trajectory."""
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import Callable
 
-import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
 from ..envs.runner import fly
 from ..envs.trajectories import trajectory_name
+from ..quick import SWEEP_QUICK
 from ..regimes import EvalSweep
 from .grouping import group_stats, summarize
 
@@ -49,32 +48,22 @@ def tracking_tables(episodes: TensorDictBase, metric: str = "rmse_xy") -> dict:
     }
 
 
-QUICK_ALTITUDE_M = 20.0
-
-
-def quick_config(cfg: EnvConfig) -> EnvConfig:
-    """``cfg`` with the short flights of the smoke runs: 10 s patterns, vertical climbs to 30 m."""
-    return replace(cfg, trajectories=replace(cfg.trajectories, horizontal_duration_s=10.0, vertical_top_m=30.0))
-
-
 def quick_subset(sweep: EvalSweep, scenarios: TensorDictBase) -> TensorDictBase:
     """A small, still factorial, smoke subset: one seed, the middle intensity, the weakest and
-    strongest wind levels, every trajectory; fixed-altitude patterns flown at 20 m, every flight
-    started airborne at its pattern (no climb to fly: a smoke run's seconds go to the pattern)."""
+    strongest wind levels, every trajectory; flown as :data:`~quadwind_trl.quick.SWEEP_QUICK`
+    says (airborne from the pattern start, fixed-altitude patterns at 20 m)."""
     mid = sweep.intensities[len(sweep.intensities) // 2]
     speeds = scenarios["wind_speed_ref_m_s"]
     keep = (scenarios["seed_index"] == 0) & ((scenarios["turb_intensity"] - mid).abs() < 1e-6)
     keep &= (speeds == min(sweep.wind_speeds)) | (speeds == max(sweep.wind_speeds))
-    out = scenarios[keep].clone()
-    out["altitude_m"] = torch.where(out["altitude_m"] < sweep.ranges.top_altitude_m, QUICK_ALTITUDE_M, out["altitude_m"])
-    out["start_step"] = torch.full_like(out["start_step"], -1)
-    return out
+    return SWEEP_QUICK.scenarios(scenarios[keep], sweep.ranges.top_altitude_m)
 
 
 def sweep_setup(sweep: EvalSweep, quick: bool = False) -> tuple[TensorDict, Callable[[EnvConfig], EnvConfig] | None]:
     """The episodes of ``sweep`` and the env-config change to fly them with: the sweep as
-    designed (no change), or with ``quick`` its smoke subset on short flights."""
+    designed (no change), or with ``quick`` its smoke subset on the short flights of
+    :data:`~quadwind_trl.quick.SWEEP_QUICK`."""
     scenarios = sweep.scenarios()
     if not quick:
         return scenarios, None
-    return quick_subset(sweep, scenarios), quick_config
+    return quick_subset(sweep, scenarios), SWEEP_QUICK.config

@@ -1,7 +1,18 @@
-"""Wind-aware residual PPO on TorchRL: the env factory (``envs``), the trainer (``ppo``) and what
-the recipes share (``cli``). See docs/rl.md."""
+"""Wind-aware residual PPO on TorchRL. See docs/rl.md.
+
+* ``envs``: the env factory (``make_env``, ``RLEnvSpec``, ``EnvFactory``);
+* ``config``: ``PPOConfig`` (paper settings beside ours) and the trajectory ``Curriculum``;
+* ``policy``: the actor-critic networks and the policy file (``load_policy``);
+* ``update``: the PPO update (GAE + minibatch ClipPPO epochs);
+* ``paired``: controllers flown on identical replayed episodes, improvement and win rate vs PD;
+* ``trainer``: ``PPOTrainer``, collect -> update -> evaluate -> checkpoint;
+* ``cli``: what the two PPO recipes share.
+"""
+from .config import Curriculum, PPOConfig, vertical_curriculum
 from .envs import EnvFactory, RLEnvSpec, load_estimator, make_env, regime_config, untrained_estimator
-from .ppo import Curriculum, PPOConfig, PPOTrainer, build_actor_critic, evaluate, load_policy, vertical_curriculum
+from .paired import fly_paired, paired_metrics
+from .policy import build_actor_critic, load_policy
+from .trainer import PPOResult, PPOTrainer
 
 __all__ = [
     "EnvFactory",
@@ -12,9 +23,11 @@ __all__ = [
     "untrained_estimator",
     "Curriculum",
     "PPOConfig",
+    "PPOResult",
     "PPOTrainer",
     "build_actor_critic",
-    "evaluate",
+    "fly_paired",
     "load_policy",
+    "paired_metrics",
     "vertical_curriculum",
 ]

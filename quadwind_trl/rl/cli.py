@@ -13,9 +13,12 @@ from pathlib import Path
 
 import torch
 
-from ..config import SENSING, TrajectoryConfig, with_sensing
+from ..config import SENSING, with_sensing
+from ..quick import PPO_QUICK
+from .config import PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, default_estimator_path, load_estimator, regime_config
-from .ppo import PPOConfig, PPOTrainer, default_eval_scenarios, vertical_curriculum
+from .paired import default_eval_scenarios
+from .trainer import PPOTrainer
 
 DEFAULT_EVAL_EPISODES = {"horizontal": 10, "vertical": 8}
 # frames between evaluations: a vertical evaluation flies up to 30,900 steps (~5 min), a horizontal
@@ -54,19 +57,14 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
 
 
 def quick_setup(regime: str, spec: RLEnvSpec) -> tuple[RLEnvSpec, PPOConfig, list[str]]:
-    """The ``--quick`` run: short flights at low altitude, 8 envs, 4 tiny iterations."""
-    base = spec.env_config
-    if regime == "horizontal":
-        traj = replace(TrajectoryConfig(), horizontal_duration_s=5.0)
-        ranges = replace(DEFAULT_RANGES[regime], altitude_m=(10.0, 10.0))
-    else:
-        traj = replace(TrajectoryConfig(), vertical_top_m=10.0, vertical_hold_s=1.0)
-        ranges = DEFAULT_RANGES[regime]
-    spec = replace(spec, config=replace(base, trajectories=traj), ranges=ranges, num_envs=8)
+    """The ``--quick`` run: the regime's short flights (:data:`~quadwind_trl.quick.PPO_QUICK`),
+    8 envs, 4 tiny iterations."""
+    quick = PPO_QUICK[regime]
+    spec = replace(spec, config=quick.config(spec.env_config), ranges=quick.ranges(DEFAULT_RANGES[regime]), num_envs=8)
     cfg = PPOConfig(total_frames=4 * 8 * 32, num_envs=8, steps_per_env=32, epochs=2, minibatch=128,
                     eval_every_frames=0, checkpoint_every_frames=2 * 8 * 32)
     changes = [
-        f"flights: {'pattern 5 s at 10 m' if regime == 'horizontal' else 'climb to 10 m, 1 s hold'}",
+        f"flights: {quick.describe()}",
         "PPO: 8 envs x 32 steps, 4 iterations, 2 epochs, minibatch 128; evaluation: 1 episode from the pattern start",
     ]
     return spec, cfg, changes
@@ -106,9 +104,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else DEFAULT_EVAL_EPISODES[regime])
     scenarios = default_eval_scenarios(regime, episodes) if episodes > 0 else None
     if args.quick and scenarios is not None:
-        scenarios["start_step"] = torch.full_like(scenarios["start_step"], -1)
-        if regime == "horizontal":
-            scenarios["altitude_m"] = torch.full_like(scenarios["altitude_m"], 10.0)
+        scenarios = PPO_QUICK[regime].scenarios(scenarios, DEFAULT_RANGES[regime].top_altitude_m)
     out = Path(args.out or f"runs/ppo_{regime}{'_quick' if args.quick else ''}")
     trainer = PPOTrainer(
         spec, cfg, out,

@@ -1,0 +1,122 @@
+"""The PPO settings (:class:`PPOConfig`) and the trajectory curriculum (:class:`Curriculum`).
+
+Paper settings (Section "Policy, observation, and action"; Stable-Baselines3 there) and ours:
+
+==========================  =====================  =============================================
+setting                     paper                  here
+==========================  =====================  =============================================
+actor / critic              MLP 2 x 256            separate MLPs 2 x 256, Tanh (SB3's default)
+action distribution         (SB3: diag. Gaussian,  TanhNormal on [-1, 1]^4 (exact log-probs of the
+                            clipped to bounds)     bounded action), state-independent scale
+learning rate               3e-4                   3e-4 (Adam, eps 1e-5 as SB3)
+samples per batch           2048 steps x n_envs    num_envs x steps_per_env = 64 x 256 = 16384
+                                                   (= 8 envs x 2048 steps)
+minibatch / epochs          512 / 10               512 / 10 (32 minibatches per epoch)
+gamma / GAE lambda          0.99 / 0.95            0.99 / 0.95, on [N, T] before flattening,
+                                                   once per batch (as SB3)
+clip / entropy / value      0.2 / 0.005 / 0.5      ClipPPOLoss(0.2, entropy_coeff=0.005,
+                                                   critic_coeff=0.5, loss_critic_type="l2")
+advantage normalisation     (SB3 default: yes)     per minibatch
+grad-norm clip              0.5                    0.5 (actor + critic parameters together)
+observation normalisation   running mean/var,      VecNormV2(decay=1.0: cumulative, as SB3),
+                            frozen at evaluation   clipped to +-10, frozen at evaluation
+total                       ~3M env steps at       --total-frames: default 1.5M decisions at
+                            100 Hz (8.3 h flight)  10 Hz (42 h of flight; docs/rl.md)
+==========================  =====================  =============================================
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+from torch import nn
+
+ACTIVATIONS = {"tanh": nn.Tanh, "elu": nn.ELU, "relu": nn.ReLU}
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    total_frames: int = 1_500_000  # decisions at 10 Hz; paper: ~3M env steps at 100 Hz (docs/rl.md)
+    num_envs: int = 64
+    steps_per_env: int = 256  # frames per batch = num_envs * steps_per_env (paper: 2048 per env)
+    epochs: int = 10  # paper
+    minibatch: int = 512  # paper
+    lr: float = 3e-4  # paper
+    clip_epsilon: float = 0.2  # paper
+    entropy_coeff: float = 0.005  # paper
+    critic_coeff: float = 0.5  # paper
+    gamma: float = 0.99  # paper
+    lmbda: float = 0.95  # paper
+    max_grad_norm: float = 0.5  # paper
+    hidden: tuple[int, ...] = (256, 256)  # paper
+    activation: str = "tanh"
+    init_scale: float = 0.5  # initial std of the pre-tanh Normal (ours; SB3 uses 1.0)
+    loss_critic_type: str = "l2"  # SB3: MSE
+    normalize_advantage: bool = True  # SB3 default
+    seed: int = 0
+    desync: bool = True  # truncate each row's first episode at a random length (EpisodeControl)
+    eval_every_frames: int = 500_000  # 0: only at the end
+    checkpoint_every_frames: int = 250_000
+    threads: int | None = 1
+
+    @property
+    def frames_per_batch(self) -> int:
+        return self.num_envs * self.steps_per_env
+
+    @property
+    def iterations(self) -> int:
+        return max(1, math.ceil(self.total_frames / self.frames_per_batch))
+
+    @property
+    def planned_frames(self) -> int:
+        """Frames of the whole run: whole batches, at least ``total_frames``."""
+        return self.iterations * self.frames_per_batch
+
+    def validate(self) -> "PPOConfig":
+        if self.frames_per_batch % self.minibatch:
+            raise ValueError(
+                f"PPOConfig: num_envs * steps_per_env = {self.frames_per_batch} must be a multiple of minibatch={self.minibatch}"
+            )
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"PPOConfig.activation={self.activation!r}; allowed: {sorted(ACTIVATIONS)}")
+        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"PPOConfig.{name}={getattr(self, name)} must be >= 1")
+        if not 0 < self.init_scale:
+            raise ValueError(f"PPOConfig.init_scale={self.init_scale} must be > 0")
+        return self
+
+
+@dataclass(frozen=True)
+class Curriculum:
+    """Trajectory stages switched by training progress.
+
+    Stage ``k`` (0-based) starts at ``starts[k] * total_frames`` and samples its episodes among
+    ``stages[k]``. The vertical curriculum (:func:`vertical_curriculum`) is cumulative: stage k
+    samples uniformly among the first k+1 trajectories. When a stage starts, running episodes are
+    truncated (bootstrapped) so the new set takes effect at once.
+    """
+
+    stages: tuple[tuple[str, ...], ...]
+    starts: tuple[float, ...]
+
+    def __post_init__(self):
+        if len(self.stages) != len(self.starts) or not self.stages:
+            raise ValueError("Curriculum: one start fraction per stage")
+        if self.starts[0] != 0.0 or list(self.starts) != sorted(self.starts) or self.starts[-1] >= 1.0:
+            raise ValueError(f"Curriculum.starts={self.starts} must start at 0, increase and stay below 1")
+
+    def stage_at(self, frames: int, total_frames: int) -> int:
+        frac = frames / max(total_frames, 1)
+        return max(k for k, s in enumerate(self.starts) if frac >= s - 1e-12)
+
+
+def vertical_curriculum(trajectories: Sequence[str] | None = None) -> Curriculum:
+    """The paper's four stages: vertical_climb -> + spiral_ascent -> + figure8_3d -> +
+    lawnmower_scan, each starting after another quarter of the frames (cumulative sets)."""
+    from ..envs.trajectories import VERTICAL
+
+    traj = tuple(trajectories or VERTICAL)
+    k = len(traj)
+    return Curriculum(stages=tuple(traj[: i + 1] for i in range(k)), starts=tuple(i / k for i in range(k)))

@@ -1,0 +1,103 @@
+"""The residual wrench policy: the actor-critic networks and the policy checkpoint format.
+
+Initialisation follows SB3: orthogonal weights, gain sqrt(2) in the hidden layers, 0.01 on the
+action mean (the initial deterministic policy is ~ the PD baseline), 1 on the value output.
+
+A policy file (``policy.pt``, or a training checkpoint, which adds the value network, optimiser,
+RNG and progress) is the dict :func:`policy_payload` makes; :func:`load_policy` reads either.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, fields
+from pathlib import Path
+from typing import Sequence
+
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
+from torch import nn
+from torchrl.envs.utils import ExplorationType
+from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
+
+from ..config import config_to_dict
+from ..transforms import OBSERVATION_CHANNELS, OBSERVATION_DIM
+from ..validation import load_checkpoint
+from .config import ACTIVATIONS, PPOConfig
+from .envs import RLEnvSpec
+
+CHECKPOINT_FORMAT = 1
+
+
+def _mlp(sizes: Sequence[int], activation: type[nn.Module], out_gain: float) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes[:-1], sizes[1:])):
+        lin = nn.Linear(a, b)
+        last = i == len(sizes) - 2
+        nn.init.orthogonal_(lin.weight, gain=out_gain if last else math.sqrt(2.0))
+        nn.init.zeros_(lin.bias)
+        layers.append(lin)
+        if not last:
+            layers.append(activation())
+    return nn.Sequential(*layers)
+
+
+def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_dim: int = 4,
+                       action_low: float = -1.0, action_high: float = 1.0) -> tuple[ProbabilisticActor, ValueOperator]:
+    """TanhNormal actor (``observation`` -> ``action``, ``action_log_prob``) and value critic."""
+    act = ACTIVATIONS[cfg.activation]
+    sizes = (obs_dim, *cfg.hidden)
+    net = nn.Sequential(
+        _mlp((*sizes, action_dim), act, 0.01),
+        AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=math.log(cfg.init_scale)),
+    )
+    actor = ProbabilisticActor(
+        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        in_keys=["loc", "scale"],
+        distribution_class=TanhNormal,
+        distribution_kwargs={"low": action_low, "high": action_high},
+        return_log_prob=True,
+        default_interaction_type=ExplorationType.DETERMINISTIC,
+    )
+    value = ValueOperator(_mlp((*sizes, 1), act, 1.0), in_keys=["observation"])
+    return actor, value
+
+
+def action_scale(actor: ProbabilisticActor) -> float:
+    """Mean standard deviation of the pre-tanh Normal (the state-independent exploration scale)."""
+    return float(actor.module[0].module[-1].state_independent_scale.detach().exp().mean())
+
+
+def spec_to_dict(spec: RLEnvSpec) -> dict:
+    """``spec`` as JSON-ready values (configs as nested dicts, plus the resolved ``env_config``)."""
+    d = {}
+    for f in fields(spec):
+        v = getattr(spec, f.name)
+        d[f.name] = config_to_dict(v) if f.name in ("config", "ranges") and v is not None else v
+    d["env_config"] = config_to_dict(spec.env_config)
+    return d
+
+
+def policy_payload(actor: ProbabilisticActor, vecnorm_state: dict, cfg: PPOConfig, spec: RLEnvSpec) -> dict:
+    """What a policy file holds: the actor's weights, the normalisation to freeze at evaluation,
+    and the PPO config and env spec that rebuild both."""
+    return {
+        "format": CHECKPOINT_FORMAT,
+        "kind": "policy",  # validation.load_checkpoint tells a policy from an estimator by it
+        "policy": actor.state_dict(),
+        "vecnorm": vecnorm_state,
+        "ppo_config": asdict(cfg),
+        "env_spec": spec_to_dict(spec),
+        "observation_channels": list(OBSERVATION_CHANNELS),
+    }
+
+
+def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dict]:
+    """A saved policy (``policy.pt`` or a training checkpoint): ``(actor, payload)``.
+
+    ``payload["vecnorm"]`` is the frozen normalisation to pass to ``make_env(...,
+    vecnorm_state=...)``; ``payload["ppo_config"]`` / ``payload["env_spec"]`` describe the run."""
+    payload = load_checkpoint(path, "policy", device)
+    cfg = payload["ppo_config"]
+    cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
+    actor, _ = build_actor_critic(cfg)
+    actor.load_state_dict(payload["policy"])
+    return actor.to(device).eval(), payload

@@ -1,0 +1,364 @@
+"""The PPO trainer: collect a batch -> update -> (periodically) evaluate against PD -> checkpoint.
+
+Each piece is its own method; :meth:`PPOTrainer.train` is the loop calling them. The update is
+:class:`~quadwind_trl.rl.update.PPOUpdate`, the evaluation flies through
+:func:`~quadwind_trl.rl.paired.fly_paired` (as the ablation does), the policy file format is
+:func:`~quadwind_trl.rl.policy.policy_payload`. Settings: :class:`~quadwind_trl.rl.config.PPOConfig`.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Callable
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.envs import TransformedEnv
+from torchrl.envs.utils import ExplorationType
+from torchrl.record.loggers import Logger
+
+from ..envs.runner import FlightResults
+from ..manifest import command_line, git_commit, save_atomic, write_json
+from ..transforms import OBSERVATION_CHANNELS
+from .config import Curriculum, PPOConfig
+from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm_state_dict, wind_estimate
+from .paired import fly_paired, paired_metrics
+from .policy import action_scale, build_actor_critic, policy_payload, spec_to_dict
+from .update import PPOUpdate
+
+
+def episode_steps_hint(spec: RLEnvSpec) -> int:
+    """Mean episode length (env steps) of ``spec``'s training trajectories: the range of the
+    first-episode de-synchronisation."""
+    from ..envs.simulator import trajectory_library
+    from ..envs.trajectories import trajectory_ids
+    from .envs import DEFAULT_RANGES, DEFAULT_TRAJECTORIES
+
+    traj = spec.trajectories or DEFAULT_TRAJECTORIES[spec.regime]
+    ranges = spec.ranges or DEFAULT_RANGES[spec.regime]
+    alt = 0.5 * sum(ranges.altitude_m) if ranges.altitude_m is not None else ranges.top_altitude_m
+    ids = trajectory_ids(traj)
+    start, end = trajectory_library(spec.env_config, "cpu").schedule(ids, torch.full((len(traj),), float(alt)))
+    steps = end - start if spec.start == "pattern" else end
+    return max(1, int(steps.float().mean()) // spec.env_config.residual.hold_control_steps)
+
+
+@dataclass
+class PPOResult:
+    """What :meth:`PPOTrainer.train` returns (the files it wrote are in ``out_dir``)."""
+
+    out_dir: Path
+    frames: int
+    iterations: int
+    history: list[dict] = field(default_factory=list)  # per-iteration training metrics (this session)
+    evals: list[dict] = field(default_factory=list)  # every evaluation of the run
+    wall_time_s: float = 0.0
+
+
+@dataclass
+class Progress:
+    """The run's counters, saved in every checkpoint (``progress``) so a resumed run continues them."""
+
+    frames: int = 0
+    iteration: int = 0
+    stage: int = 0  # curriculum stage
+    pd_eval: dict | None = None  # PD's per-episode evaluation results, flown once (the same every time)
+    wall: float = 0.0  # s of training over all sessions
+    evals: list[dict] = field(default_factory=list)
+    last_eval_frames: int = 0
+    last_ckpt_frames: int = 0
+
+
+@dataclass
+class _Session:
+    """What one call of :meth:`PPOTrainer.train` works on."""
+
+    learner: PPOUpdate
+    env: TransformedEnv
+    eval_env: TransformedEnv | None
+    progress: Progress
+    logger: Logger
+    result: PPOResult
+    wall0: float  # perf_counter() at which the run's wall time would have been 0
+
+    def tick(self) -> float:
+        """Update and return the run's wall time."""
+        self.progress.wall = time.perf_counter() - self.wall0
+        return self.progress.wall
+
+
+class PPOTrainer:
+    """Collect -> GAE -> 10 epochs of minibatch ClipPPO updates, with periodic deterministic
+    evaluation against PD, CSV (or TensorBoard) logs, checkpoints and resume.
+
+    Output directory::
+
+        OUT/config.json                 the run's PPO config and env spec
+        OUT/logs/<exp>/scalars/*.csv    TorchRL CSVLogger (TensorBoard with logger="tensorboard")
+        OUT/checkpoints/latest.pt       policy, value, optimiser, VecNorm stats, RNG, progress
+        OUT/checkpoints/latest.json     its manifest
+        OUT/policy.pt, OUT/policy.json  the final policy + frozen normalisation + manifest
+    """
+
+    def __init__(
+        self,
+        env_spec: RLEnvSpec,
+        cfg: PPOConfig,
+        out_dir: str | Path,
+        *,
+        eval_scenarios: TensorDictBase | None = None,
+        curriculum: Curriculum | None = None,
+        logger: str = "csv",
+        progress: bool = True,
+        command: str | None = None,
+        estimator_bundle=None,
+        on_iteration: Callable[[dict], None] | None = None,
+    ):
+        self.cfg = cfg.validate()
+        if env_spec.num_envs != cfg.num_envs:
+            env_spec = replace(env_spec, num_envs=cfg.num_envs)
+        self.spec = env_spec
+        self.out_dir = Path(out_dir)
+        self.eval_scenarios = eval_scenarios
+        self.curriculum = curriculum
+        self.logger_kind = logger
+        self.progress = progress
+        self.command = command if command is not None else command_line(sys.argv)
+        self.factory = EnvFactory(env_spec, bundle=estimator_bundle)
+        self.on_iteration = on_iteration
+
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.out_dir / "checkpoints" / "latest.pt"
+
+    # --- the loop ------------------------------------------------------------------------------
+
+    def train(self, resume: bool = False) -> PPOResult:
+        """Train to ``cfg.total_frames`` (whole batches), from ``checkpoints/latest.pt`` with
+        ``resume``; writes the files listed above and returns the run's :class:`PPOResult`."""
+        if self.cfg.threads:
+            torch.set_num_threads(self.cfg.threads)
+        session = self._start(self._check_resume(resume))
+        if session.progress.frames < self.cfg.planned_frames:
+            self._collect_and_update(session)
+        return self._finish(session)
+
+    def _collect_and_update(self, s: _Session) -> None:
+        from torchrl.collectors import Collector
+        from tqdm.auto import tqdm
+
+        cfg = self.cfg
+        collector = Collector(s.env, s.learner.actor, frames_per_batch=cfg.frames_per_batch,
+                              total_frames=cfg.planned_frames - s.progress.frames,
+                              exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
+        bar = tqdm(total=cfg.planned_frames, initial=s.progress.frames, unit="frame", unit_scale=True,
+                   disable=not self.progress, desc="ppo")
+        gen = torch.Generator().manual_seed(cfg.seed * 1000 + s.progress.iteration)
+        t_collect0 = time.perf_counter()
+        try:
+            for data in collector:
+                metrics = self._iteration(s, data, gen, collect_s=time.perf_counter() - t_collect0)
+                bar.update(data.numel())
+                bar.set_postfix(r=f"{metrics['reward_mean']:.3f}", ret=f"{metrics.get('episode_return', float('nan')):.0f}")
+                if self.on_iteration is not None:
+                    self.on_iteration(metrics)
+                if self._evaluation_due(s):
+                    self._evaluate(s)
+                if self._checkpoint_due(s):
+                    self._checkpoint(s)
+                t_collect0 = time.perf_counter()
+        finally:
+            bar.close()
+            collector.shutdown()
+
+    # --- pieces -------------------------------------------------------------------------------
+
+    def _check_resume(self, resume: bool) -> bool:
+        latest = self.checkpoint_path
+        if latest.exists() and not resume:
+            raise FileExistsError(f"{latest} exists: pass --resume to continue that run, or choose another --out")
+        if resume and not latest.exists():
+            # resumable stages (reproduce.py) always pass --resume: nothing to resume is a fresh start
+            print(f"--resume: no checkpoint at {latest}; starting a new run", flush=True)
+            resume = False
+        latest.parent.mkdir(parents=True, exist_ok=True)
+        return resume
+
+    def _start(self, resume: bool) -> _Session:
+        """Networks, optimiser, envs and logger, from the checkpoint when resuming (the order of
+        the seeded steps is the run's: a resumed run repeats the same random streams)."""
+        cfg, spec = self.cfg, self.spec
+        torch.manual_seed(cfg.seed)
+        actor, value = build_actor_critic(cfg)
+        learner = PPOUpdate(actor.to(spec.device), value.to(spec.device), cfg)
+        progress = Progress()
+        checkpoint = None
+        if resume:
+            checkpoint = torch.load(self.checkpoint_path, weights_only=True)
+            learner.load_state_dict(checkpoint)
+            progress = Progress(**checkpoint["progress"])
+            torch.random.set_rng_state(checkpoint["rng"])
+        else:
+            write_json(self.out_dir / "config.json", {"ppo_config": asdict(cfg), "env_spec": spec_to_dict(spec),
+                                                      "curriculum": asdict(self.curriculum) if self.curriculum else None,
+                                                      "command": self.command})
+        # the training env: a fresh seed per (resumed) segment so episodes do not repeat
+        env = self.factory(seed=spec.seed + 7919 * progress.iteration,
+                           desync_steps=episode_steps_hint(spec) if cfg.desync else 0)
+        if self.factory.bundle is not None:
+            learner.check_frozen(self.factory.bundle.model)
+        if checkpoint is not None:
+            load_vecnorm_state(env, checkpoint["vecnorm"])
+        if self.curriculum is not None:
+            self._apply_stage(env, progress.stage, truncate=False)
+        eval_env = None
+        if self.eval_scenarios is not None:
+            eval_env = self.factory(num_envs=self.eval_scenarios.batch_size[0], seed=spec.seed + 1, desync_steps=0)
+        result = PPOResult(self.out_dir, progress.frames, progress.iteration, evals=list(progress.evals))
+        return _Session(learner, env, eval_env, progress, self._make_logger(), result,
+                        wall0=time.perf_counter() - progress.wall)
+
+    def _iteration(self, s: _Session, data: TensorDictBase, gen: torch.Generator, collect_s: float) -> dict:
+        """Update on one collected batch; advance the counters and the curriculum; log."""
+        t0 = time.perf_counter()
+        stats = self._episode_stats(data)
+        metrics = s.learner.update(data, gen)
+        update_s = time.perf_counter() - t0
+        p = s.progress
+        p.iteration += 1
+        p.frames += data.numel()
+        metrics.update(stats)
+        metrics.update(frames=p.frames, collect_s=collect_s, update_s=update_s, fps=data.numel() / max(collect_s, 1e-9),
+                       action_scale=action_scale(s.learner.actor))
+        if self.curriculum is not None:
+            metrics["curriculum_stage"] = p.stage
+            new_stage = self.curriculum.stage_at(p.frames, self.cfg.total_frames)
+            if new_stage != p.stage:
+                p.stage = new_stage
+                self._apply_stage(s.env, new_stage, truncate=True)
+        try:
+            metrics["estimator_s"] = wind_estimate(s.env).estimator_seconds
+        except KeyError:  # wind_input="truth" without an estimator
+            pass
+        metrics["wall_s"] = s.tick()
+        self._log(s.logger, "train", metrics, p.frames)
+        s.result.history.append(metrics)
+        return metrics
+
+    def _apply_stage(self, env: TransformedEnv, stage: int, truncate: bool) -> None:
+        base = env.base_env
+        base.scenario_sampler = replace(base.scenario_sampler, trajectories=tuple(self.curriculum.stages[stage]))
+        if truncate:
+            episode_control(env).request_truncation()
+
+    @staticmethod
+    def _episode_stats(data: TensorDictBase) -> dict[str, float]:
+        nxt = data["next"]
+        done = nxt["done"].squeeze(-1)
+        out = {
+            "reward_mean": float(nxt["reward"].mean()),
+            "crash_rate_per_kstep": float(1000.0 * nxt["terminated"].float().mean()),
+            "episodes_finished": int(done.sum()),
+        }
+        if bool(done.any()):
+            out["episode_return"] = float(nxt["episode_reward"][done].mean())
+            out["episode_length"] = float(nxt["step_count"][done].float().mean())
+        return out
+
+    def _finished(self, p: Progress) -> bool:
+        return p.frames >= self.cfg.planned_frames
+
+    def _evaluation_due(self, s: _Session) -> bool:
+        p, every = s.progress, self.cfg.eval_every_frames
+        return s.eval_env is not None and (self._finished(p) or (every and p.frames - p.last_eval_frames >= every))
+
+    def _checkpoint_due(self, s: _Session) -> bool:
+        p = s.progress
+        return self._finished(p) or p.frames - p.last_ckpt_frames >= self.cfg.checkpoint_every_frames
+
+    def _evaluate(self, s: _Session) -> None:
+        """The deterministic policy against PD on the evaluation scenarios (PD flown once and
+        cached: its flights never change), with the training normalisation frozen."""
+        p = s.progress
+        load_vecnorm_state(s.eval_env, vecnorm_state_dict(s.env))
+        t0 = time.perf_counter()
+        flights = {"policy": (s.eval_env, s.learner.actor)}
+        if p.pd_eval is None:
+            flights = {"pd": (s.eval_env, None), **flights}
+        flown = fly_paired(flights, self.eval_scenarios)
+        if p.pd_eval is None:
+            pd = flown["pd"]
+            p.pd_eval = {"index": pd.index, "rmse_xy": pd.rmse_xy, "rmse_z": pd.rmse_z, "crashed": pd.crashed}
+        pd = FlightResults(**p.pd_eval, log=TensorDict({}, batch_size=[p.pd_eval["index"].numel(), 0]))
+        metrics = paired_metrics(flown["policy"], pd)
+        metrics["eval_s"] = time.perf_counter() - t0
+        metrics["frames"] = p.frames
+        p.last_eval_frames = p.frames
+        p.evals = list(p.evals) + [metrics]
+        self._log(s.logger, "eval", metrics, p.frames)
+        if self.progress:
+            print(f"[eval @ {p.frames} frames] rmse {metrics['rmse']:.3f} m vs PD {metrics['pd_rmse']:.3f} m "
+                  f"(RMSE reduction {metrics['improvement_vs_pd']:+.1f} %, positive = better), win rate {metrics['win_rate']:.2f}, "
+                  f"crashed {metrics['crashed']}, {metrics['eval_s']:.0f} s", flush=True)
+
+    def _checkpoint(self, s: _Session) -> None:
+        """``checkpoints/latest.pt``: everything :meth:`train` needs to resume, and its manifest."""
+        p = s.progress
+        p.last_ckpt_frames = p.frames
+        s.tick()
+        payload = policy_payload(s.learner.actor, vecnorm_state_dict(s.env), self.cfg, self.spec)
+        payload.update(s.learner.state_dict(), rng=torch.random.get_rng_state(), progress=asdict(p))
+        save_atomic(payload, self.checkpoint_path)
+        write_json(self.checkpoint_path.with_suffix(".json"), self._manifest(p))
+
+    def _finish(self, s: _Session) -> PPOResult:
+        """``policy.pt`` (the policy, its frozen normalisation and the critic) and ``policy.json``."""
+        p = s.progress
+        s.tick()
+        payload = policy_payload(s.learner.actor, vecnorm_state_dict(s.env), self.cfg, self.spec)
+        payload["value"] = s.learner.value.state_dict()
+        save_atomic(payload, self.out_dir / "policy.pt")
+        write_json(self.out_dir / "policy.json", self._manifest(p) | {"evals": p.evals})
+        r = s.result
+        r.frames, r.iterations, r.wall_time_s, r.evals = p.frames, p.iteration, p.wall, list(p.evals)
+        return r
+
+    def _make_logger(self) -> Logger:
+        from torchrl.record import CSVLogger
+
+        log_dir = str(self.out_dir / "logs")
+        if self.logger_kind == "tensorboard":
+            from torchrl.record import TensorboardLogger
+
+            try:
+                return TensorboardLogger(exp_name="ppo", log_dir=log_dir)
+            except ImportError as err:  # torch.utils.tensorboard needs the tensorboard package
+                raise ImportError(f"logger='tensorboard' needs TensorBoard: pip install -e '.[tensorboard]' ({err})") from None
+        if self.logger_kind != "csv":
+            raise ValueError(f"logger={self.logger_kind!r}; allowed: 'csv', 'tensorboard'")
+        return CSVLogger(exp_name="ppo", log_dir=log_dir)
+
+    @staticmethod
+    def _log(logger: Logger, prefix: str, metrics: dict, frames: int) -> None:
+        for k, v in metrics.items():
+            logger.log_scalar(f"{prefix}/{k}", float(v), step=frames)
+
+    def _manifest(self, p: Progress) -> dict:
+        est = self.factory.bundle
+        return {
+            "command": self.command,
+            "git_commit": git_commit(),
+            "ppo_config": asdict(self.cfg),
+            "env_spec": spec_to_dict(self.spec),
+            "curriculum": asdict(self.curriculum) if self.curriculum else None,
+            "estimator": {"path": self.spec.estimator_path, "untrained": self.spec.untrained_estimator,
+                          "manifest": getattr(est, "manifest", None)},
+            "observation_channels": list(OBSERVATION_CHANNELS),
+            "frames": p.frames,
+            "iterations": p.iteration,
+            "wall_time_s": round(p.wall, 1),
+            "torch_threads": torch.get_num_threads(),
+            "metrics": p.evals[-1] if p.evals else {},
+        }

@@ -1,0 +1,79 @@
+"""The PPO update: GAE on a collected batch, then epochs of minibatch ClipPPO steps.
+
+The frozen estimator lives in the env's ``WindEstimate`` transform as a plain attribute: the
+optimiser is built from ``loss.parameters()`` (actor + critic only), and :meth:`PPOUpdate.check_frozen`
+confirms at start-up that no estimator parameter is among them.
+"""
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torch import nn
+from torchrl.modules import ProbabilisticActor, ValueOperator
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from .config import PPOConfig
+
+# what the loss reads from a collected batch (the rest, e.g. the flight record, is dropped)
+BATCH_KEYS = ("observation", "action", "action_log_prob", ("next", "observation"), ("next", "reward"),
+              ("next", "done"), ("next", "terminated"), ("next", "truncated"))
+LOSS_METRICS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "clip_fraction", "kl_approx",
+                "explained_variance")
+
+
+class PPOUpdate:
+    """ClipPPOLoss + GAE + Adam over the actor and critic: ``update(batch, generator)`` -> mean losses."""
+
+    def __init__(self, actor: ProbabilisticActor, value: ValueOperator, cfg: PPOConfig):
+        self.cfg = cfg
+        self.actor, self.value = actor, value
+        self.loss = ClipPPOLoss(
+            actor, value,
+            clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coeff, critic_coeff=cfg.critic_coeff,
+            loss_critic_type=cfg.loss_critic_type, normalize_advantage=cfg.normalize_advantage,
+        )  # fmt: skip
+        self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=value, average_gae=False)
+        self.params = list(self.loss.parameters())
+        self.optim = torch.optim.Adam(self.params, lr=cfg.lr, eps=1e-5)  # SB3's Adam eps
+
+    def check_frozen(self, model: nn.Module) -> None:
+        """Fail if any parameter of ``model`` (the frozen estimator) would be optimised."""
+        frozen = {id(p) for p in model.parameters()}
+        if any(id(p) in frozen for p in self.params):
+            raise RuntimeError("estimator parameters found among the optimised parameters")
+
+    def update(self, data: TensorDictBase, generator: torch.Generator) -> dict[str, float]:
+        """GAE on ``data`` ([N, T], time last, before flattening, as SB3), then ``cfg.epochs``
+        passes of shuffled minibatches; returns each loss term and the grad norm averaged over
+        the minibatches."""
+        cfg = self.cfg
+        batch = data.select(*BATCH_KEYS)
+        with torch.no_grad():
+            self.gae(batch)
+        flat = batch.reshape(-1)
+        sums: dict[str, torch.Tensor] = {}  # summed on the device: one sync per update
+        steps = 0
+        for _ in range(cfg.epochs):
+            for idx in torch.randperm(flat.batch_size[0], generator=generator).split(cfg.minibatch):
+                out = self.loss(flat[idx])
+                total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
+                self.optim.zero_grad(set_to_none=True)
+                total.backward()
+                grad_norm = torch.nn.utils.clip_grad_norm_(self.params, cfg.max_grad_norm)
+                self.optim.step()
+                for k in LOSS_METRICS:
+                    if k in out.keys():
+                        sums[k] = sums.get(k, 0.0) + out[k].detach().mean()
+                sums["grad_norm"] = sums.get("grad_norm", 0.0) + grad_norm.detach()
+                steps += 1
+        return {k: float(v) / steps for k, v in sums.items()}
+
+    def state_dict(self) -> dict:
+        """Actor, critic and optimiser state (the training checkpoint's ``policy``, ``value``, ``optimizer``)."""
+        return {"policy": self.actor.state_dict(), "value": self.value.state_dict(), "optimizer": self.optim.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.actor.load_state_dict(state["policy"])
+        self.value.load_state_dict(state["value"])
+        self.optim.load_state_dict(state["optimizer"])
