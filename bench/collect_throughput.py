@@ -32,7 +32,8 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     from torchrl.objectives import ClipPPOLoss
     from torchrl.objectives.value import GAE
 
-    from quadwind_trl.rl.envs import default_estimator_path, load_estimator, make_env, wind_estimate
+    from quadwind_trl.estimator import default_estimator_path, load_estimator
+    from quadwind_trl.rl.envs import make_env, wind_estimate
     from quadwind_trl.rl.ppo import PPOConfig, PPOTrainer, build_actor_critic
     from quadwind_trl.rl.envs import RLEnvSpec
 

@@ -44,8 +44,9 @@ from quadwind_trl.evaluation.estimation import (
     predict_flights,
 )
 from quadwind_trl.envs.trajectories import TRAJECTORIES
-from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR, EstimatorBundle
-from quadwind_trl.training.estimator import EstimatorData, load_estimator_data, split_flights
+from quadwind_trl.estimator import EstimatorBundle
+from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.estimator.training import EstimatorData, load_estimator_data, split_flights
 
 
 def sequences(bundle: EstimatorBundle, ed: EstimatorData, flights: torch.Tensor, stride: int, batch: int, desc: str) -> FlightSequences:

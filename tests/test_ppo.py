@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from quadwind_trl.envs.runner import fly
-from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, regime_config, untrained_estimator, vecnorm
+from quadwind_trl.estimator import untrained_estimator
+from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, regime_config, vecnorm
 from quadwind_trl.rl.ppo import (
     Curriculum,
     PPOConfig,

@@ -47,7 +47,7 @@ from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
 from ..envs.scenarios import SCENARIO_FIELDS, RegimeRanges, cross_with_trajectories, sample_regimes
 from ..envs.trajectories import HORIZONTAL, TRAJECTORIES, VERTICAL
-from .features import RAW_RECORD_KEYS, RAW_RECORD_SIZES
+from ..estimator.features import RAW_RECORD_KEYS, RAW_RECORD_SIZES
 
 Regime = Literal["horizontal", "vertical"]
 

@@ -22,7 +22,7 @@ from tensordict import TensorDict, TensorDictBase
 from ..config import EnvConfig, config_from_dict
 from ..envs.runner import FlightResults, fly
 from ..envs.trajectories import TRAJECTORIES
-from ..modules.wind_estimator import EstimatorBundle
+from ..estimator import EstimatorBundle
 from ..regimes import EvalSweep
 from .grouping import summarize
 from .statistics import decompose, paired_summary
@@ -53,7 +53,7 @@ def fly_controllers(
 
     The env is the one the policy trained in (its config is in the checkpoint), unless
     ``config_override`` changes it (e.g. shorter flights for smoke runs)."""
-    from ..rl.envs import make_env
+    from ..rl.envs import make_env, policy_ema_tau_s
     from ..rl.ppo import load_policy
 
     actor, payload = load_policy(policy_path, device=device)
@@ -71,6 +71,7 @@ def fly_controllers(
             device=device,
             config=config,
             vecnorm_state=payload["vecnorm"],
+            ema_tau_s=policy_ema_tau_s(payload["env_spec"], estimator),
         )
         policy = None if name == "pd" else actor
         out[name] = fly(env, scenarios, policy=policy, log_keys=TRACE_KEYS, progress=progress)

@@ -10,7 +10,8 @@ from __future__ import annotations
 from ..config import EnvConfig
 from ..envs import QuadWindEnv
 from ..envs.runner import fly
-from ..modules.wind_estimator import CHECKPOINT_DIR
+from ..estimator import load_estimator
+from ..manifest import CHECKPOINT_DIR
 from ..regimes import SWEEP_REGIME, SWEEPS
 from .ablation import fly_controllers
 from .tracking import sweep_setup
@@ -20,7 +21,6 @@ METRICS = ("rmse_xy", "rmse_z")
 
 def replay(sweep_name: str, rows: slice, quick: bool) -> dict[str, dict[str, list[str]]]:
     """Per-controller, per-metric ``float.hex`` of every episode of ``rows`` of the sweep."""
-    from ..rl.envs import load_estimator  # the RL stack sits above evaluation
 
     sweep, regime = SWEEPS[sweep_name], SWEEP_REGIME[sweep_name]
     scenarios, override = sweep_setup(sweep, quick)

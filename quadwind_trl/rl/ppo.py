@@ -55,7 +55,7 @@ from ..manifest import command_line, git_commit, save_atomic, write_json
 from ..validation import load_checkpoint
 from ..envs.runner import fly
 from ..evaluation.statistics import improvement, win_rate
-from ..transforms import OBSERVATION_CHANNELS, OBSERVATION_DIM
+from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM
 from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm, vecnorm_state_dict, wind_estimate
 
 CHECKPOINT_FORMAT = 1

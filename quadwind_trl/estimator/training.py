@@ -3,14 +3,14 @@ configuration" of both regimes).
 
 Adam (3e-4, weight decay 1e-5), linear warm-up then cosine decay per optimiser step, batch 256,
 Gaussian input noise on the standardised features, the wind-case-balanced sampler, the loss of
-:mod:`quadwind_trl.modules.estimator_loss`. Model selection and early stopping on the validation
+:mod:`quadwind_trl.estimator.loss`. Model selection and early stopping on the validation
 per-window vector RMSE (m/s), evaluated every epoch.
 
 Artifacts of a run writing to ``out`` (e.g. ``quadwind_trl/checkpoints/estimator_horizontal.pt``):
 
 * ``out`` and its manifest ``out`` with suffix ``.json``: the best checkpoint as an
-  :class:`EstimatorBundle` (weights, schema, channel names, feature and label standardisation, EMA
-  time constant) and its manifest (command, configuration, git commit, dataset manifest hash,
+  :class:`EstimatorBundle` (weights, schema, channel names, feature and label standardisation)
+  and its manifest (command, configuration, git commit, dataset manifest hash,
   validation and test metrics). Written atomically once, when training ends; until then the best
   model so far lives in ``log_dir/<exp_name>/best.pt`` (+ ``.json``), so an interrupted run never
   leaves a half-trained model at ``out``.
@@ -38,13 +38,14 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..data.features import make_extractor
 from ..data.generate import load_dataset
 from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
 from ..evaluation.estimation import estimation_metrics
 from ..manifest import git_commit, repo_relative, save_atomic
-from ..modules.estimator_loss import EstimatorLoss, EstimatorLossConfig
-from ..modules.wind_estimator import AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
+from .checkpoint import EstimatorBundle
+from .features import make_extractor
+from .loss import EstimatorLoss, EstimatorLossConfig
+from .model import AttentionGRUEstimator, EstimatorConfig
 
 REGIMES = ("horizontal", "vertical")
 QUICK_FRACTIONS = (1 / 3, 1 / 3, 1 / 3)  # --quick on a 3-case dataset: one case per split
@@ -70,7 +71,6 @@ class TrainConfig:
     eval_batch_size: int = 1024  # measured: batch 4096 is 2-3x slower per window than 256-1024 (cache)
     seed: int = 0
     compile: bool = False
-    ema_tau_s: float = 3.0  # paper: the deployed post-filter time constant (the bundle's default)
     log_every_steps: int = 50
     loss: EstimatorLossConfig = field(default_factory=EstimatorLossConfig)
 
@@ -289,7 +289,7 @@ class TrainResult:
     initial_val: dict | None = None  # validation metrics of the untrained model
 
 
-def _make_bundle(model: AttentionGRUEstimator, wd: WindowedData, schema: str, cfg: TrainConfig, manifest: dict) -> EstimatorBundle:
+def _make_bundle(model: AttentionGRUEstimator, wd: WindowedData, schema: str, manifest: dict) -> EstimatorBundle:
     frozen = copy.deepcopy(model).eval().requires_grad_(False)
     return EstimatorBundle(
         model=frozen,
@@ -299,7 +299,6 @@ def _make_bundle(model: AttentionGRUEstimator, wd: WindowedData, schema: str, cf
         feature_std=wd.feature_stats.std.clone(),
         label_mean=wd.label_stats.mean.clone(),
         label_std=wd.label_stats.std.clone(),
-        ema_tau_s=cfg.ema_tau_s,
         manifest=manifest,
     )
 
@@ -476,7 +475,7 @@ def train_estimator(
                 "val_metrics": headline(best),
                 "metrics": {"wall_time_s": wall, "status": "training (test metrics are written at the end)"},
             }
-            _make_bundle(model, wd, cfg.regime, cfg, manifest).save(best_path)
+            _make_bundle(model, wd, cfg.regime, manifest).save(best_path)
         stop = cfg.patience is not None and bad_epochs >= cfg.patience
         save_atomic(
             {
