@@ -401,3 +401,7 @@ def test_policy_ema_tau_s_falls_back_to_the_estimator_checkpoint(bundle):
         assert policy_ema_tau_s(spec, load_estimator(regime)) == 3.0
     with pytest.raises(ValueError, match="ema_tau_s"):
         make_env("horizontal", bundle, 1, ema_tau_s=-1.0)
+    with pytest.raises(TypeError, match="unknown settings"):
+        make_env("horizontal", bundle, 1, ema_tau=3.0)
+    with pytest.raises(TypeError, match=r"not a WindEstimator \(missing \['window'"):
+        WindEstimate(type("NoWindow", (), {"schema": "horizontal", "channels": (), "predict": None, "to": None})())

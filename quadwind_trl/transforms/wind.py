@@ -76,6 +76,9 @@ class WindEstimate(Transform):
         if source == "estimate":
             if estimator is None:
                 raise ValueError("WindEstimate(source='estimate') needs an estimator")
+            if not isinstance(estimator, WindEstimator):
+                missing = [m for m in ("schema", "channels", "window", "predict", "to") if not hasattr(estimator, m)]
+                raise TypeError(f"WindEstimate: {type(estimator).__name__} is not a WindEstimator (missing {missing})")
             extractor = make_extractor(estimator.schema, cfg)
             if tuple(estimator.channels) != tuple(extractor.channels):
                 raise ValueError(
