@@ -277,8 +277,11 @@ def resume_path(out: str | os.PathLike, log_dir: str | os.PathLike = "runs/estim
 
 
 @dataclass
-class TrainResult:
-    bundle: EstimatorBundle
+class EstimatorTrainResult:
+    """What :func:`train_estimator` returns (``bundle`` is None when stopped early by
+    ``stop_after_epochs``)."""
+
+    bundle: EstimatorBundle | None
     history: list[dict]
     best_epoch: int
     best_val: dict
@@ -488,7 +491,7 @@ def train_estimator(
     progress: bool = True,
     command: str | None = None,
     stop_after_epochs: int | None = None,
-) -> TrainResult:
+) -> EstimatorTrainResult:
     """Train on ``ed``'s training split, select on validation, write the best bundle to ``out``.
 
     ``stop_after_epochs`` ends this call after that many epochs (as an interruption would, the
@@ -592,8 +595,8 @@ def train_estimator(
             break
         if stop_after_epochs is not None and epoch + 1 - run.start_epoch >= stop_after_epochs and epoch < cfg.epochs - 1:
             bar.close()
-            return TrainResult(None, run.history, run.best_epoch, run.best, {}, wall, out, exp_name, run.initial_val)
+            return EstimatorTrainResult(None, run.history, run.best_epoch, run.best, {}, wall, out, exp_name, run.initial_val)
     bar.close()
     train_wall = run.wall_before + time.perf_counter() - t_start
     bundle, test = _finish(ed, cfg, trainer, run, best_path, out, train_wall, logger)
-    return TrainResult(bundle, run.history, run.best_epoch, run.best, test, train_wall, out, exp_name, run.initial_val)
+    return EstimatorTrainResult(bundle, run.history, run.best_epoch, run.best, test, train_wall, out, exp_name, run.initial_val)
