@@ -86,6 +86,10 @@ class EstimatorBundle:
     ema_tau_s: float | None = None
     manifest: dict = field(default_factory=dict)
 
+    def __post_init__(self):
+        # a bundle is a frozen estimator: no dropout at inference, invisible to any optimiser
+        self.model.eval().requires_grad_(False)
+
     @property
     def window(self) -> int:
         return self.model.cfg.window
@@ -148,7 +152,7 @@ class EstimatorBundle:
         manifest = json.loads(manifest_path.read_text()) if manifest_path.exists() else {}
         tau = payload.get("ema_tau_s")
         bundle = cls(
-            model=model.eval().requires_grad_(False),
+            model=model,
             schema=payload["schema"],
             channels=channels,
             feature_mean=payload["feature_mean"],
@@ -176,7 +180,7 @@ def untrained_estimator(schema: Schema = "horizontal", seed: int = 0, config: En
     torch.random.set_rng_state(gen_state)
     c = len(channels)
     return EstimatorBundle(
-        model=model.eval().requires_grad_(False),
+        model=model,
         schema=schema,
         channels=channels,
         feature_mean=torch.zeros(c),

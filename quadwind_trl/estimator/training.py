@@ -293,9 +293,8 @@ class EstimatorTrainResult:
 
 
 def _make_bundle(model: AttentionGRUEstimator, wd: WindowedData, schema: str, manifest: dict) -> EstimatorBundle:
-    frozen = copy.deepcopy(model).eval().requires_grad_(False)
     return EstimatorBundle(
-        model=frozen,
+        model=copy.deepcopy(model),  # the bundle freezes its copy
         schema=schema,
         channels=tuple(wd.channels),
         feature_mean=wd.feature_stats.mean.clone(),
