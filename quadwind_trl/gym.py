@@ -29,7 +29,7 @@ from gymnasium.vector import AutoresetMode
 from tensordict import TensorDictBase
 
 from .estimator import load_estimator
-from .keys import OBSERVATION_DIM
+from .keys import OBSERVATION_DIM, OBSERVATION_KEY
 from .manifest import CHECKPOINT_DIR
 from .rl.envs import Regime, WindInput, make_env
 from .validation import check_action, load_checkpoint
@@ -73,7 +73,7 @@ class _BatchedStack:
 
     @staticmethod
     def _obs(td: TensorDictBase) -> np.ndarray:
-        return td.get("observation").numpy().astype(np.float32, copy=True)
+        return td.get(OBSERVATION_KEY).numpy().astype(np.float32, copy=True)
 
 
 def _spaces(obs_clip: float, num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
