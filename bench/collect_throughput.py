@@ -30,8 +30,9 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     from torchrl.collectors import Collector
     from torchrl.envs.utils import ExplorationType
 
+    from quadwind_trl.estimator import default_estimator_path, load_estimator
     from quadwind_trl.rl.config import PPOConfig
-    from quadwind_trl.rl.envs import RLEnvSpec, default_estimator_path, load_estimator, make_env, wind_estimate
+    from quadwind_trl.rl.envs import RLEnvSpec, make_env, wind_estimate
     from quadwind_trl.rl.policy import build_actor_critic
     from quadwind_trl.rl.trainer import episode_steps_hint
     from quadwind_trl.rl.update import PPOUpdate

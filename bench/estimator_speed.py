@@ -19,8 +19,7 @@ import time
 import torch
 from machine import load_1min, machine_line
 
-from quadwind_trl.modules.estimator_loss import EstimatorLoss
-from quadwind_trl.modules.wind_estimator import AttentionGRUEstimator, EstimatorConfig
+from quadwind_trl.estimator import AttentionGRUEstimator, EstimatorConfig, EstimatorLoss
 
 
 def timed(fn, min_time: float, min_calls: int = 3) -> float:

@@ -28,9 +28,10 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from tensordict import TensorDictBase
 
-from .modules.wind_estimator import CHECKPOINT_DIR
-from .rl.envs import Regime, WindInput, load_estimator, make_env
-from .transforms import OBSERVATION_DIM
+from .estimator import load_estimator
+from .keys import OBSERVATION_DIM, OBSERVATION_KEY
+from .manifest import CHECKPOINT_DIR
+from .rl.envs import Regime, WindInput, make_env
 from .validation import check_action, load_checkpoint
 
 ENV_IDS = {"horizontal": "QuadWind-Horizontal-v0", "vertical": "QuadWind-Vertical-v0"}
@@ -49,7 +50,7 @@ class _BatchedStack:
                  vecnorm_state: dict | None, obs_clip: float, seed: int, env_kwargs: dict[str, Any]):
         bundle = None if wind_input == "truth" else load_estimator(regime, estimator)
         state = vecnorm_state if vecnorm_state is not None else shipped_vecnorm_state(regime)
-        self.env = make_env(regime, bundle, num_envs, wind_input, seed=seed, obs_clip=obs_clip,
+        self.env = make_env(regime, bundle, num_envs, wind_input=wind_input, seed=seed, obs_clip=obs_clip,
                             vecnorm_state=state, **env_kwargs)
         self.num_envs = num_envs
         self.td: TensorDictBase | None = None
@@ -72,7 +73,7 @@ class _BatchedStack:
 
     @staticmethod
     def _obs(td: TensorDictBase) -> np.ndarray:
-        return td.get("observation").numpy().astype(np.float32, copy=True)
+        return td.get(OBSERVATION_KEY).numpy().astype(np.float32, copy=True)
 
 
 def _spaces(obs_clip: float, num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:

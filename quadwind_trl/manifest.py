@@ -41,6 +41,8 @@ def write_json(path: str | os.PathLike, payload: dict) -> None:
 
 
 ROOT = Path(__file__).resolve().parent.parent
+#: the shipped estimator and policy checkpoints (package data; never rewritten by the library)
+CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 
 
 def repo_relative(path: str | os.PathLike) -> str:

@@ -256,7 +256,7 @@ def check_action(action: torch.Tensor | None, batch: int, dim: int) -> None:
 CheckpointKind = Literal["policy", "estimator"]
 KIND_DESCRIPTION = {
     "policy": "a PPO policy (load it with quadwind_trl.rl.policy.load_policy)",
-    "estimator": "a wind-estimator bundle (load it with EstimatorBundle.load or rl.envs.load_estimator)",
+    "estimator": "a wind-estimator bundle (load it with quadwind_trl.estimator.load_estimator)",
 }
 
 

@@ -23,8 +23,8 @@ from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, summarize_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
-from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
-from quadwind_trl.rl.envs import load_estimator
+from quadwind_trl.estimator import load_estimator
+from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
 
 

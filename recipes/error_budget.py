@@ -26,8 +26,8 @@ from quadwind_trl.config import SENSING, SENSOR_PRESETS, EnvConfig, with_sensor_
 from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle, summary_lines
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
-from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
-from quadwind_trl.rl.envs import load_estimator
+from quadwind_trl.estimator import load_estimator
+from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from quadwind_trl.evaluation.figures import learning_curves
 from quadwind_trl.evaluation.report import build_report, policy_runs
-from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
+from quadwind_trl.manifest import CHECKPOINT_DIR
 
 PREAMBLE = """# Results: ours beside the paper's
 

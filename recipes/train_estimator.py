@@ -20,8 +20,8 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
-from quadwind_trl.training.estimator import full_config, load_estimator_data, quick_config, train_estimator
+from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.estimator.training import full_config, load_estimator_data, quick_config, train_estimator
 
 
 def main() -> None:

@@ -21,7 +21,6 @@ import quadwind_trl.data.generate as generate_mod
 from quadwind_trl.config import EnvConfig, TrajectoryConfig
 from quadwind_trl.data import (
     CaseBalancedSampler,
-    FeatureExtractor,
     GenerationSpec,
     WindowDataset,
     compute_features,
@@ -36,6 +35,7 @@ from quadwind_trl.data import (
 from quadwind_trl.data.windows import sample_stats, t_safety_s
 from quadwind_trl.envs import RegimeRanges
 from quadwind_trl.envs.trajectories import trajectory_ids
+from quadwind_trl.estimator.features import FeatureExtractor
 
 ROOT = Path(__file__).resolve().parent.parent
 

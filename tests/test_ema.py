@@ -1,4 +1,4 @@
-"""The spike-gated EMA post-filter (quadwind_trl.modules.ema): step response, spike gating, the
+"""The spike-gated EMA post-filter (quadwind_trl.estimator.ema): step response, spike gating, the
 online step equals the offline scan, row resets."""
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from quadwind_trl.modules.ema import EMAConfig, ema_init, ema_reset_rows, ema_scan, ema_step
+from quadwind_trl.estimator.ema import EMAConfig, ema_init, ema_reset_rows, ema_scan, ema_step
 
 NO_GATE = dict(spike_factor=1e9)
 

@@ -15,7 +15,7 @@ from quadwind_trl.config import (
     GRAVITY_M_S2, LEGACY_NAVIGATION, LEGACY_SENSORS, SENSOR_PRESETS, ControllerConfig, EnvConfig, ResidualConfig,
     RewardConfig, SensorChannelConfig, TrajectoryConfig, VehicleConfig, config_from_dict, with_sensor_preset,
 )
-from quadwind_trl.modules.wind_estimator import CHECKPOINT_DIR
+from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.envs import HORIZONTAL, VERTICAL, QuadWindEnv, make_scenarios, trajectory_names
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from quadwind_trl.data import HORIZONTAL_CHANNELS, VERTICAL_CHANNELS
+from quadwind_trl.estimator.features import HORIZONTAL_CHANNELS, VERTICAL_CHANNELS
 from quadwind_trl.data.generate import generate_dataset, quick_spec
 from quadwind_trl.evaluation.estimation import (
     FlightSequences,
@@ -31,9 +31,9 @@ from quadwind_trl.evaluation.estimation import (
     turbulence_floor,
     vector_rmse,
 )
-from quadwind_trl.modules.estimator_loss import EstimatorLoss, EstimatorLossConfig, wind_angle
-from quadwind_trl.modules.wind_estimator import AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
-from quadwind_trl.training.estimator import (
+from quadwind_trl.estimator.loss import EstimatorLoss, EstimatorLossConfig, wind_angle
+from quadwind_trl.estimator import AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
+from quadwind_trl.estimator.training import (
     evaluate_table,
     load_estimator_data,
     lr_factor,
@@ -105,6 +105,52 @@ def test_saved_checkpoint_reloads_to_identical_outputs(tmp_path):
     assert torch.equal(loaded.predict(x), bundle.predict(x))
     assert loaded.manifest == bundle.manifest and loaded.channels == bundle.channels
     assert not any(p.requires_grad for p in loaded.model.parameters()) and not loaded.model.training
+
+
+def test_checkpoints_name_their_network_and_the_shipped_ones_default_to_the_attention_gru(tmp_path):
+    """The loader builds the class a checkpoint names (a registry), not a hard-coded one; the
+    shipped checkpoints predate the name and load as the attention-GRU."""
+    from dataclasses import dataclass
+
+    from quadwind_trl.estimator import load_estimator, register_model
+    from quadwind_trl.estimator.checkpoint import MODELS
+    from quadwind_trl.manifest import CHECKPOINT_DIR
+    from quadwind_trl.validation import load_checkpoint
+
+    for regime in ("horizontal", "vertical"):
+        assert "model" not in load_checkpoint(CHECKPOINT_DIR / f"estimator_{regime}.pt", "estimator")
+        assert type(load_estimator(regime).model) is AttentionGRUEstimator
+    path = tmp_path / "gru.pt"
+    small_bundle().save(path)
+    assert torch.load(path, weights_only=True)["model"] == "attention_gru"
+
+    @dataclass(frozen=True)
+    class MeanConfig:
+        in_channels: int
+        window: int = 60
+
+    class WindowMean(torch.nn.Module):  # a second network: the window mean of two channels
+        def __init__(self, cfg: MeanConfig):
+            super().__init__()
+            self.cfg = cfg
+            self.gain = torch.nn.Parameter(torch.ones(2))
+
+        def forward(self, x):
+            return x[..., :2].mean(1) * self.gain
+
+    register_model("window_mean", WindowMean, MeanConfig)
+    try:
+        b = small_bundle()
+        b.model = WindowMean(MeanConfig(len(VERTICAL_CHANNELS), window=30))
+        b.save(tmp_path / "mean.pt")
+        loaded = EstimatorBundle.load(tmp_path / "mean.pt")
+        assert type(loaded.model) is WindowMean and loaded.window == 30
+        x = torch.randn(4, 30, len(VERTICAL_CHANNELS))
+        assert torch.equal(loaded.predict(x), b.predict(x))
+    finally:
+        del MODELS["window_mean"]
+    with pytest.raises(ValueError, match="model='window_mean'; registered"):
+        EstimatorBundle.load(tmp_path / "mean.pt")
 
 
 def test_loading_with_another_feature_schema_fails_clearly(tmp_path):

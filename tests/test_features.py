@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from quadwind_trl.config import EnvConfig, SensorConfig, TurbulenceConfig
-from quadwind_trl.data.features import (
+from quadwind_trl.estimator.features import (
     HORIZONTAL_CHANNELS,
     RAW_RECORD_KEYS,
     RAW_RECORD_SIZES,

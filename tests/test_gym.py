@@ -60,14 +60,14 @@ def test_vector_env_batches_and_resets_in_the_same_step():
 
 def test_observation_is_the_torchrl_stacks():
     from quadwind_trl.envs import make_scenarios
-    from quadwind_trl.modules.wind_estimator import pretrained_estimator
+    from quadwind_trl.estimator import load_estimator
     from quadwind_trl.rl.envs import make_env
 
     kwargs = _short("horizontal")
     sc = make_scenarios(2, traj_id="figure8_h", altitude_m=20.0, wind_speed_ref_m_s=6.0, turb_intensity=0.1,
                         turb_seed=[1, 2], sensor_seed=[3, 4], start_step=-1)
     envs = qgym.QuadWindVectorEnv("horizontal", 2, **kwargs)
-    ref = make_env("horizontal", pretrained_estimator("horizontal"), 2, vecnorm_state=qgym.shipped_vecnorm_state("horizontal"),
+    ref = make_env("horizontal", load_estimator("horizontal"), 2, vecnorm_state=qgym.shipped_vecnorm_state("horizontal"),
                    **kwargs)
     obs, _ = envs.reset(options={"scenario": sc})
     td = ref.reset(scenario=sc)

@@ -9,25 +9,19 @@ from dataclasses import replace
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.envs import Compose, TransformedEnv
+from torchrl.data import Unbounded
+from torchrl.envs import Compose, Transform, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from quadwind_trl.config import EnvConfig, TrajectoryConfig
-from quadwind_trl.data.features import make_extractor
+from quadwind_trl.estimator.features import make_extractor
 from quadwind_trl.envs import QuadWindEnv, ScenarioSampler, make_scenarios
 from quadwind_trl.envs.runner import fly
-from quadwind_trl.modules.ema import EMAConfig, ema_scan
-from quadwind_trl.rl.envs import make_env, untrained_estimator, vecnorm, wind_estimate
-from quadwind_trl.transforms import (
-    OBSERVATION_CHANNELS,
-    OBSERVATION_DIM,
-    WIND_INDICES,
-    EpisodeControl,
-    FeatureHistory,
-    PolicyObservation,
-    WindEstimate,
-    WindZero,
-)
+from quadwind_trl.estimator.ema import EMAConfig, ema_scan
+from quadwind_trl.keys import OBSERVATION_CHANNELS, OBSERVATION_DIM, WIND_INDICES
+from quadwind_trl.estimator import untrained_estimator
+from quadwind_trl.rl.envs import make_env, vecnorm, wind_estimate
+from quadwind_trl.transforms import EpisodeControl, PolicyObservation, WindEstimate, WindZero
 
 RAW = ("meas", "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
 
@@ -49,6 +43,30 @@ def scenarios(n: int, traj=("figure8_h", "lawnmower_h", "racetrack_h"), altitude
 @pytest.fixture(scope="module")
 def bundle():
     return untrained_estimator("horizontal", seed=0, config=short_config())
+
+
+def latest_features(west: WindEstimate) -> torch.Tensor:
+    """``[N, C]``: every row's newest sample in ``WindEstimate``'s feature ring."""
+    return west.ring.windows(torch.arange(west.ring.n))[:, -1]
+
+
+class LatestFeatures(Transform):
+    """Test probe: logs ``WindEstimate``'s newest ring sample as ``"features"`` at every step."""
+
+    def __init__(self, west: WindEstimate):
+        super().__init__(in_keys=[], out_keys=["features"])
+        self.west = west
+
+    def _call(self, td):
+        td.set("features", latest_features(self.west))
+        return td
+
+    def _reset(self, tensordict, tensordict_reset):
+        return self._call(tensordict_reset)
+
+    def transform_observation_spec(self, spec):
+        spec["features"] = Unbounded(shape=(*spec.shape, self.west.ring.extractor.num_channels), device=spec.device)
+        return spec
 
 
 def test_observation_layout():
@@ -89,11 +107,11 @@ def test_vertical_env_and_schema_mismatch(bundle):
         make_env("vertical", bundle, 2)
 
 
-def test_each_transform_alone():
-    """FeatureHistory, WindEstimate(truth), PolicyObservation and WindZero on a bare env."""
+def test_each_transform_alone(bundle):
+    """WindEstimate (estimate, truth), PolicyObservation and WindZero on a bare env."""
     cfg = short_config()
     for transforms in (
-        [FeatureHistory("horizontal", config=cfg)],
+        [WindEstimate(bundle, config=cfg)],
         [WindEstimate(source="truth", config=cfg), PolicyObservation(cfg), WindZero()],
         [WindEstimate(source="truth", config=cfg), WindZero(in_key="wind_hat")],
         [EpisodeControl(3)],
@@ -104,16 +122,14 @@ def test_each_transform_alone():
 
 @torch.no_grad()
 def test_online_features_and_estimates_equal_offline(bundle):
-    """Flying through FeatureHistory + WindEstimate gives, at every 10 Hz tick, exactly (bitwise)
-    the offline ``scan`` features of the same flight's record; the estimator input windows are
+    """Flying through WindEstimate gives, at every 10 Hz tick, exactly (bitwise) the offline
+    ``scan`` features of the same flight's record in its ring; the estimator input windows are
     the offline windows (left-padded by repeating the first sample) and ``wind_hat`` is the EMA of
     the estimator's outputs on them (to 1e-5: the estimator batches rows differently)."""
     cfg = short_config()
     n = 3
-    env = TransformedEnv(
-        QuadWindEnv(cfg, batch_size=[n]),
-        Compose(FeatureHistory("horizontal", config=cfg), WindEstimate(bundle, config=cfg)),
-    )
+    west = WindEstimate(bundle, config=cfg)
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[n]), Compose(west, LatestFeatures(west)))
     res = fly(env, scenarios(n), log_keys=RAW + ("step", "features", "wind_hat"))
     log = res.log
     valid = log["valid"]
@@ -128,23 +144,27 @@ def test_online_features_and_estimates_equal_offline(bundle):
     idx = torch.arange(t_len)[:, None] + torch.arange(-59, 1)[None, :]  # [T, 60]
     padded = offline[:, idx.clamp_min(0)]  # left padding = the first sample repeated
     preds = bundle.predict(padded.reshape(n * t_len, 60, -1)).reshape(n, t_len, 2)
-    expected = ema_scan(preds, EMAConfig(tau_s=bundle.ema_tau_s, dt_s=cfg.timing.log_dt_s))
+    expected = ema_scan(preds, EMAConfig(dt_s=cfg.timing.log_dt_s))
     torch.testing.assert_close(log["wind_hat"], expected, atol=1e-5, rtol=1e-5)
 
 
 @torch.no_grad()
-def test_online_features_equal_offline_with_staggered_rows():
+def test_online_features_equal_offline_with_staggered_rows(bundle):
     """A row restarted between ticks ticks on other control steps than the rest: every row's
     online features still equal (bitwise) the offline scan of its own flight record."""
     cfg = short_config()
     fx = make_extractor("horizontal", cfg)
-    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[3]), FeatureHistory(fx, config=cfg))
+    west = WindEstimate(bundle, config=cfg)
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[3]), west)
     rec = {i: [] for i in range(3)}
 
     def log(td, rows):
+        feats = latest_features(west)
         for i in rows:
             if int(td["step"][i]) % 10 == 0:
-                rec[i].append(td[i].select(*fx.raw_keys, "features").clone())
+                row = td[i].select(*fx.raw_keys).clone()
+                row["features"] = feats[i].clone()
+                rec[i].append(row)
 
     td = env.reset(scenario=scenarios(3))
     log(td, range(3))
@@ -166,16 +186,16 @@ def test_online_features_equal_offline_with_staggered_rows():
 
 def test_history_and_ema_reset_only_masked_rows(bundle):
     cfg = short_config()
-    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[3]), Compose(FeatureHistory("horizontal", config=cfg),
-                                                                WindEstimate(bundle, config=cfg)))
+    west = WindEstimate(bundle, config=cfg)
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[3]), west)
     td = env.reset(scenario=scenarios(3))
     for _ in range(35):  # 3 more ticks after the first
         td["action"] = torch.zeros(3, 4)
         td = env.step(td)["next"]
-    hist, west = env.transform[0], env.transform[1]
+    ring = west.ring
     before = {
-        "buf": hist.ring.buf.clone(), "ptr": hist.ring.ptr.clone(), "count": hist.ring.count.clone(),
-        "sum": hist.ring.fx_state["sum_long"].clone(), "ebuf": west.ring.buf.clone(),
+        "buf": ring.buf.clone(), "ptr": ring.ptr.clone(), "count": ring.count.clone(),
+        "sum": ring.fx_state["sum_long"].clone(),
         "ema": {k: v.clone() for k, v in west.ema_state.items()}, "value": west.value.clone(),
     }  # fmt: skip
     assert before["count"].tolist() == [4, 4, 4]
@@ -183,17 +203,17 @@ def test_history_and_ema_reset_only_masked_rows(bundle):
     td["_reset"] = mask.unsqueeze(-1)  # as a collector resets: the current data plus the mask
     out = env.reset(td, scenario=scenarios(3))
     keep = ~mask
-    assert torch.equal(hist.ring.buf[keep], before["buf"][keep]) and torch.equal(west.ring.buf[keep], before["ebuf"][keep])
-    assert torch.equal(hist.ring.ptr[keep], before["ptr"][keep]) and torch.equal(hist.ring.count[keep], before["count"][keep])
-    assert torch.equal(hist.ring.fx_state["sum_long"][keep], before["sum"][keep])
+    assert torch.equal(ring.buf[keep], before["buf"][keep])
+    assert torch.equal(ring.ptr[keep], before["ptr"][keep]) and torch.equal(ring.count[keep], before["count"][keep])
+    assert torch.equal(ring.fx_state["sum_long"][keep], before["sum"][keep])
     for k, v in before["ema"].items():
         assert torch.equal(west.ema_state[k][keep], v[keep])
     assert torch.equal(west.value[keep], before["value"][keep])
     assert torch.equal(out["wind_hat"][keep], before["value"][keep])
     # the reset row restarted: one sample, its window is that sample repeated, EMA = first estimate
-    assert hist.ring.count.tolist() == [4, 1, 4]
-    w = hist.ring.windows(torch.tensor([1]))[0]
-    assert torch.equal(w, out["features"][1].expand_as(w))
+    assert ring.count.tolist() == [4, 1, 4]
+    w = ring.windows(torch.tensor([1]))[0]
+    assert torch.equal(w, w[-1].expand_as(w))
     first = bundle.predict(west.ring.windows(torch.tensor([1])))
     torch.testing.assert_close(west.value[1:2], first)
     assert bool(west.ema_state["started"][1])
@@ -229,19 +249,20 @@ def test_wind_zero_zeroes_exactly_the_wind_inputs(bundle):
     assert a[..., list(WIND_INDICES)].abs().sum() > 0
 
 
-def test_raw_observation_matches_sensors_and_features():
+def test_raw_observation_matches_sensors_and_features(bundle):
     """Before normalisation: the kinematic block equals the estimator features' (at ticks), the
     wind block is wind_hat, and the controller channels are the env's entries."""
     cfg = short_config()
+    west = WindEstimate(bundle, config=cfg, out_key="wind_estimate")  # its ring holds the features
     env = TransformedEnv(QuadWindEnv(cfg, batch_size=[2]), Compose(
-        FeatureHistory("horizontal", config=cfg), WindEstimate(source="truth", config=cfg), PolicyObservation(cfg)))
+        west, WindEstimate(source="truth", config=cfg), PolicyObservation(cfg)))
     td = env.reset(scenario=scenarios(2))
     for _ in range(20):
         td["action"] = torch.full((2, 4), 0.3)
         td = env.step(td)["next"]
     from quadwind_trl.transforms.observation import to_heading_frame
 
-    obs, feats, yaw = td["observation"], td["features"], td["meas"][:, 9]
+    obs, feats, yaw = td["observation"], latest_features(west), td["meas"][:, 9]
     # step 20 is a tick: the kinematic block is the features', horizontal velocity in the heading frame
     assert torch.equal(obs[:, 0], feats[:, 0]) and torch.equal(obs[:, 3:13], feats[:, 3:13])
     assert torch.equal(obs[:, 1:3], torch.stack(to_heading_frame(feats[:, 1], feats[:, 2], yaw), -1))
@@ -323,3 +344,65 @@ def test_episode_control_desyncs_first_episodes():
     env.transform.request_truncation()
     td = env.rand_step(env.reset())
     assert bool(td["next", "truncated"].all())
+
+
+class ConstantEstimator:
+    """A second estimator, written against the WindEstimator interface only: always the same wind."""
+
+    schema = "horizontal"
+    window = 5
+
+    def __init__(self, wind_ne: tuple[float, float], config: EnvConfig):
+        self.channels = make_extractor("horizontal", config).channels
+        self.wind = torch.tensor(wind_ne)
+
+    def predict(self, windows: torch.Tensor) -> torch.Tensor:
+        assert windows.shape[1:] == (self.window, len(self.channels))
+        return self.wind.expand(windows.shape[0], 2)
+
+    def to(self, device):
+        self.wind = self.wind.to(device)
+        return self
+
+
+@torch.no_grad()
+def test_a_new_estimator_class_drives_wind_estimate():
+    """Any WindEstimator plugs into the env: its predictions (EMA-filtered; a constant passes the
+    filter unchanged) become wind_hat, on its own window length; make_env sets the EMA tau."""
+    from quadwind_trl.estimator import WindEstimator
+
+    cfg = short_config()
+    est = ConstantEstimator((3.0, -4.0), cfg)
+    assert isinstance(est, WindEstimator)
+    env = make_env("horizontal", est, 2, config=cfg, ema_tau_s=1.5)
+    check_env_specs(env)
+    west = wind_estimate(env)
+    assert west.ring.window == 5 and west.ema_config.tau_s == 1.5
+    td = env.reset(scenario=scenarios(2))
+    for _ in range(3):
+        td["action"] = torch.zeros(2, 4)
+        td = env.step(td)["next"]
+        assert torch.equal(td["wind_hat"], est.wind.expand(2, 2))
+
+
+def test_policy_ema_tau_s_falls_back_to_the_estimator_checkpoint(bundle):
+    """Policies record the env's EMA tau; older ones (the shipped) trained with their estimator's."""
+    from quadwind_trl.estimator import DEFAULT_TAU_S, load_estimator
+    from quadwind_trl.manifest import CHECKPOINT_DIR
+    from quadwind_trl.rl.envs import policy_ema_tau_s
+    from quadwind_trl.validation import load_checkpoint
+
+    assert policy_ema_tau_s({"ema_tau_s": 2.0}, bundle) == 2.0
+    assert policy_ema_tau_s({}, replace(bundle, ema_tau_s=4.5)) == 4.5
+    assert policy_ema_tau_s({}, bundle) == DEFAULT_TAU_S  # no tau in the checkpoint
+    assert make_env("horizontal", bundle, 1, config=short_config()).transform[1].ema_config.tau_s == DEFAULT_TAU_S
+    for regime in ("horizontal", "vertical"):
+        spec = load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["env_spec"]
+        assert "ema_tau_s" not in spec
+        assert policy_ema_tau_s(spec, load_estimator(regime)) == 3.0
+    with pytest.raises(ValueError, match="ema_tau_s"):
+        make_env("horizontal", bundle, 1, ema_tau_s=-1.0)
+    with pytest.raises(TypeError, match="unknown settings"):
+        make_env("horizontal", bundle, 1, ema_tau=3.0)
+    with pytest.raises(TypeError, match=r"not a WindEstimator \(missing \['window'"):
+        WindEstimate(type("NoWindow", (), {"schema": "horizontal", "channels": (), "predict": None, "to": None})())

@@ -12,7 +12,7 @@ from quadwind_trl.config import EnvConfig, TurbulenceConfig, VehicleConfig
 from quadwind_trl.envs import QuadWindEnv, make_scenarios
 from quadwind_trl.envs.scenarios import RegimeRanges
 from quadwind_trl.envs.trajectories import trajectory_names
-from quadwind_trl.modules.wind_estimator import EstimatorBundle
+from quadwind_trl.estimator import EstimatorBundle
 from quadwind_trl.rl.policy import load_policy
 
 CHECKPOINTS = Path(__file__).resolve().parent.parent / "quadwind_trl" / "checkpoints"
@@ -118,7 +118,7 @@ def test_loading_the_wrong_kind_of_checkpoint_says_what_it_is(loader, path, word
 
 
 def test_checkpoints_carry_a_kind_and_old_ones_still_load(tmp_path):
-    from quadwind_trl.rl.envs import untrained_estimator
+    from quadwind_trl.estimator import untrained_estimator
 
     # the shipped files predate "kind": their kind is inferred from their entries
     assert "kind" not in torch.load(CHECKPOINTS / "policy_horizontal.pt", weights_only=True)

@@ -47,7 +47,7 @@ from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
 from ..envs.scenarios import SCENARIO_FIELDS, RegimeRanges, cross_with_trajectories, sample_regimes
 from ..envs.trajectories import HORIZONTAL, VERTICAL, trajectory_names
-from .features import RAW_RECORD_KEYS, RAW_RECORD_SIZES
+from ..estimator.features import RAW_RECORD_KEYS, RAW_RECORD_SIZES
 
 Regime = Literal["horizontal", "vertical"]
 

@@ -21,7 +21,7 @@ from torch.utils.data import Dataset, Sampler
 
 from ..config import TrajectoryConfig
 from ..envs.trajectories import fixed_altitude_mask
-from .features import FeatureExtractor
+from ..estimator.features import FeatureExtractor
 
 WINDOW = 60  # paper: 60 samples = 6 s at 10 Hz
 STRIDE = {"horizontal": 12, "vertical": 16}  # paper

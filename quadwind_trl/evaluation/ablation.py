@@ -23,9 +23,9 @@ from tensordict import TensorDict, TensorDictBase
 from ..config import EnvConfig, config_from_dict
 from ..envs.runner import FlightResults
 from ..envs.trajectories import trajectory_name
-from ..modules.wind_estimator import EstimatorBundle
+from ..estimator import EstimatorBundle
 from ..regimes import EvalSweep
-from ..rl.envs import make_env
+from ..rl.envs import make_env, policy_ema_tau_s
 from ..rl.paired import fly_paired
 from ..rl.policy import load_policy
 from .grouping import summarize
@@ -65,7 +65,8 @@ def fly_controllers(
     n = batch or scenarios.batch_size[0]
     flights = {
         name: (make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
-                        device=device, config=config, vecnorm_state=payload["vecnorm"]),
+                        device=device, config=config, vecnorm_state=payload["vecnorm"],
+                        ema_tau_s=policy_ema_tau_s(payload["env_spec"], estimator)),
                None if name == "pd" else actor)
         for name in controllers
     }

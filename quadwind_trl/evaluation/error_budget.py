@@ -26,7 +26,7 @@ from tensordict import TensorDictBase
 
 from ..config import SENSING, EnvConfig, Sensing, with_sensing
 from ..envs.runner import FlightResults
-from ..modules.wind_estimator import EstimatorBundle
+from ..estimator import EstimatorBundle
 from .ablation import fly_controllers
 from .report import headroom_pct
 from .statistics import paired_summary

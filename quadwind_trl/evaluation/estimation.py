@@ -32,8 +32,8 @@ from typing import Callable, Sequence
 import torch
 from torch import Tensor
 
-from ..modules.ema import EMAConfig, ema_scan
-from ..modules.estimator_loss import wind_angle
+from ..estimator.ema import EMAConfig, ema_scan
+from ..estimator.loss import wind_angle
 
 SPEED_BINS_M_S: tuple[float, ...] = (0.0, 4.0, 8.0, 12.0, 16.0, math.inf)  # paper
 ALTITUDE_BINS_M: tuple[float, ...] = (0.0, 150.0, 300.0, 450.0, math.inf)  # paper

@@ -252,7 +252,7 @@ def pipeline_overview(path: Path) -> Path:
     a.axis("off")
     boxes = {
         "sim": (0.02, 0.55, "QuadWindEnv\n6-DOF quadrotor, PD cascade\nvon Karman turbulence, sensors"),
-        "feat": (0.27, 0.55, "FeatureHistory\n10 Hz features (48 / 22 ch.)\n60-sample window"),
+        "feat": (0.27, 0.55, "FeatureRing\n10 Hz features (48 / 22 ch.)\n60-sample window"),
         "est": (0.52, 0.55, "WindEstimate\nfrozen attention-GRU\n+ spike-gated EMA (3 s)"),
         "obs": (0.52, 0.08, "PolicyObservation\n23 inputs incl. (w_N, w_E)\nWindZero: ablation"),
         "ppo": (0.77, 0.08, "PPO residual policy\nClipPPOLoss + GAE\nwrench added to PD"),

@@ -10,9 +10,9 @@ from __future__ import annotations
 from ..config import EnvConfig
 from ..envs import QuadWindEnv
 from ..envs.runner import fly
-from ..modules.wind_estimator import CHECKPOINT_DIR
+from ..estimator import load_estimator
+from ..manifest import CHECKPOINT_DIR
 from ..regimes import SWEEP_REGIME, SWEEPS
-from ..rl.envs import load_estimator
 from .ablation import fly_controllers
 from .tracking import sweep_setup
 

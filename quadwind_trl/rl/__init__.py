@@ -1,6 +1,6 @@
 """Wind-aware residual PPO on TorchRL. See docs/rl.md.
 
-* ``envs``: the env factory (``make_env``, ``RLEnvSpec``, ``EnvFactory``);
+* ``envs``: the env factory (``make_env``, ``build_env``, ``RLEnvSpec``, ``EnvFactory``);
 * ``config``: ``PPOConfig`` (paper settings beside ours) and the trajectory ``Curriculum``;
 * ``policy``: the actor-critic networks and the policy file (``load_policy``);
 * ``update``: the PPO update (GAE + minibatch ClipPPO epochs);
@@ -9,7 +9,7 @@
 * ``cli``: what the two PPO recipes share.
 """
 from .config import Curriculum, PPOConfig, vertical_curriculum
-from .envs import EnvFactory, RLEnvSpec, load_estimator, make_env, regime_config, untrained_estimator
+from .envs import EnvFactory, RLEnvSpec, build_env, make_env, regime_config
 from .paired import fly_paired, paired_metrics
 from .policy import build_actor_critic, load_policy
 from .trainer import PPOResult, PPOTrainer
@@ -17,10 +17,9 @@ from .trainer import PPOResult, PPOTrainer
 __all__ = [
     "EnvFactory",
     "RLEnvSpec",
-    "load_estimator",
+    "build_env",
     "make_env",
     "regime_config",
-    "untrained_estimator",
     "Curriculum",
     "PPOConfig",
     "PPOResult",

@@ -14,9 +14,10 @@ from pathlib import Path
 import torch
 
 from ..config import SENSING, with_sensing
+from ..estimator import default_estimator_path, load_estimator
 from ..quick import PPO_QUICK
 from .config import PPOConfig, vertical_curriculum
-from .envs import DEFAULT_RANGES, RLEnvSpec, default_estimator_path, load_estimator, regime_config
+from .envs import DEFAULT_RANGES, RLEnvSpec, regime_config
 from .paired import default_eval_scenarios
 from .trainer import PPOTrainer
 

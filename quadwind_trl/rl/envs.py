@@ -15,24 +15,29 @@ Stack (``env.transform[i]``)::
     . RewardSum, StepCounter   episode_reward, step_count for logging
 
 Everything that defines an env is in :class:`RLEnvSpec` (a frozen dataclass of plain values and
-configs), and :class:`EnvFactory` builds the env from it in any process (it loads the estimator
-from its path there), so TorchRL's multi-process collectors can construct it.
+configs, the one list of env settings and their defaults): :func:`build_env` builds the env of a
+spec, :func:`make_env` is the keyword shorthand (its keywords are the spec's fields), and
+:class:`EnvFactory` holds a spec and builds the env in any process (it loads the estimator from
+its path there), so TorchRL's multi-process collectors can construct it.
+
+The wind estimate's post-filter time constant is ``RLEnvSpec.ema_tau_s`` (default
+``estimator.ema.DEFAULT_TAU_S``); trained policies record it in their env spec. Policies trained
+before that field existed used the value in their estimator's checkpoint
+(:func:`policy_ema_tau_s`).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 from typing import Literal, TypeVar
 
-import torch
 from torchrl.envs import ClipTransform, Compose, RewardSum, StepCounter, TransformedEnv, VecNormV2
 
 from ..config import EnvConfig
-from ..data.features import make_extractor
 from ..envs.quad_env import QuadWindEnv, ScenarioSampler
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
-from ..modules.wind_estimator import CHECKPOINT_DIR, AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
+from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
+from ..keys import OBSERVATION_KEY
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL
 from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, WindZero
 
@@ -64,105 +69,81 @@ def _check_regime(regime: str) -> None:
         raise ValueError(f"regime={regime!r}; allowed: 'horizontal', 'vertical'")
 
 
-def untrained_estimator(schema: str = "horizontal", seed: int = 0, config: EnvConfig | None = None) -> EstimatorBundle:
-    """A seeded, randomly initialised estimator with identity standardisation, for development
-    and smoke tests only (its outputs are meaningless)."""
-    channels = make_extractor(schema, config).channels
-    gen_state = torch.random.get_rng_state()
-    torch.manual_seed(seed)
-    model = AttentionGRUEstimator(EstimatorConfig(in_channels=len(channels)))
-    torch.random.set_rng_state(gen_state)
-    c = len(channels)
-    return EstimatorBundle(
-        model=model.eval().requires_grad_(False),
-        schema=schema,
-        channels=channels,
-        feature_mean=torch.zeros(c),
-        feature_std=torch.ones(c),
-        label_mean=torch.zeros(2),
-        label_std=torch.ones(2),
-        manifest={"untrained": True, "seed": seed},
-    )
+@dataclass(frozen=True)
+class RLEnvSpec:
+    """Everything that defines an RL env, as plain values (picklable; the estimator by path)."""
+
+    regime: Regime = "horizontal"  # "horizontal" (HORIZONTAL_RL, w_z = 1) or "vertical" (VERTICAL_RL, w_z = 0.5)
+    num_envs: int = 64
+    # "estimate" (paper), "zero" (the ablation: the policy's wind inputs forced to 0) or "truth" (oracle)
+    wind_input: WindInput = "estimate"
+    device: str = "cpu"
+    seed: int = 0
+    estimator_path: str | None = None  # None: the shipped estimator (or untrained, below)
+    untrained_estimator: bool = False
+    config: EnvConfig | None = None  # None: regime_config(regime)
+    trajectories: tuple[str, ...] | None = None  # None: the regime's library
+    ranges: RegimeRanges | None = None  # None: the regime's RL ranges
+    start: Literal["ground", "pattern"] = "ground"
+    desync_steps: int = 0  # first-episode random truncation (0: off; training uses ~ an episode length)
+    obs_clip: float | None = 10.0  # observation clip after normalisation (None: off)
+    compile_step: bool = False
+    ema_tau_s: float = DEFAULT_TAU_S  # s, the wind estimate's EMA time constant (0: raw estimate)
+
+    def __post_init__(self):
+        _check_regime(self.regime)
+        if self.wind_input not in WIND_INPUTS:
+            raise ValueError(f"RLEnvSpec.wind_input={self.wind_input!r}; allowed: {WIND_INPUTS}")
+        if self.num_envs < 1:
+            raise ValueError(f"RLEnvSpec.num_envs={self.num_envs}; allowed: >= 1")
+        if not self.ema_tau_s >= 0:
+            raise ValueError(f"RLEnvSpec.ema_tau_s={self.ema_tau_s!r} s; allowed: >= 0 (0: unfiltered)")
+        if self.desync_steps < 0:
+            raise ValueError(f"RLEnvSpec.desync_steps={self.desync_steps}; allowed: >= 0")
+
+    @property
+    def env_config(self) -> EnvConfig:
+        return self.config if self.config is not None else regime_config(self.regime)
 
 
-def default_estimator_path(regime: Regime) -> Path:
-    return CHECKPOINT_DIR / f"estimator_{regime}.pt"
-
-
-def load_estimator(regime: Regime, path: str | Path | None = None, *, untrained: bool = False, seed: int = 0,
-                   config: EnvConfig | None = None, device="cpu") -> EstimatorBundle:
-    """The estimator at ``path`` (default: the shipped one for ``regime``); with ``untrained=True``
-    and no path, a seeded random one. Fails with a clear message when nothing fits."""
-    _check_regime(regime)
-    if path is None and untrained:
-        return untrained_estimator(regime, seed, config).to(device)
-    path = Path(path) if path is not None else default_estimator_path(regime)
-    if not path.exists():
-        raise FileNotFoundError(
-            f"no estimator checkpoint at {path}. Train one (recipes/train_estimator.py --regime {regime}) "
-            "and pass --estimator PATH, or pass --untrained-estimator for a smoke test (random estimator: "
-            "the wind channels are then meaningless)"
-        )
-    return EstimatorBundle.load(path, expect_channels=make_extractor(regime, config).channels, device=device)
-
-
-def make_env(
-    regime: Regime,
-    estimator_bundle: EstimatorBundle | None,
-    num_envs: int,
-    wind_input: WindInput = "estimate",
-    device: str | torch.device = "cpu",
-    seed: int = 0,
+def build_env(
+    spec: RLEnvSpec,
+    estimator: WindEstimator | None,
     *,
-    config: EnvConfig | None = None,
-    trajectories: tuple[str, ...] | None = None,
-    ranges: RegimeRanges | None = None,
-    start: Literal["ground", "pattern"] = "ground",
-    desync_steps: int = 0,
-    obs_clip: float | None = 10.0,
     vecnorm_state: dict | None = None,
     freeze_norm: bool | None = None,
-    compile_step: bool = False,
 ) -> TransformedEnv:
-    """The transformed env of one regime (see the module docstring for the stack).
+    """The transformed env of ``spec`` (see the module docstring for the stack).
 
     Args:
-        regime: ``"horizontal"`` (5 fixed-altitude trajectories, ``HORIZONTAL_RL``, ``w_z = 1``)
-            or ``"vertical"`` (4 climbing trajectories, ``VERTICAL_RL``, ``w_z = 0.5``).
-        estimator_bundle: the frozen estimator (may be None for ``wind_input="truth"``).
-        wind_input: ``"estimate"`` (paper), ``"zero"`` (the ablation: same stack, the policy's wind
-            inputs forced to 0) or ``"truth"`` (oracle: the true mean wind).
-        config: env config; default ``regime_config(regime)``.
-        trajectories, ranges, start: the training distribution (defaults: the regime's library,
-            its RL ranges, episodes starting on the ground).
-        desync_steps: first-episode random truncation (0: off; training uses ~ an episode length).
+        spec: the env's settings.
+        estimator: the frozen wind estimator (may be None for ``wind_input="truth"``).
         vecnorm_state: a saved ``VecNormV2`` state dict (``vecnorm_state_dict(env)``) to load.
         freeze_norm: freeze the normalisation statistics (default: frozen iff ``vecnorm_state``).
     """
-    _check_regime(regime)
-    if wind_input not in WIND_INPUTS:
-        raise ValueError(f"wind_input={wind_input!r}; allowed: {WIND_INPUTS}")
-    if wind_input != "truth" and estimator_bundle is None:
-        raise ValueError(f"wind_input={wind_input!r} needs an estimator bundle")
-    if estimator_bundle is not None and estimator_bundle.schema != regime:
-        raise ValueError(f"the estimator was trained on the {estimator_bundle.schema!r} schema, not {regime!r}")
-    cfg = config if config is not None else regime_config(regime)
+    if spec.wind_input != "truth" and estimator is None:
+        raise ValueError(f"wind_input={spec.wind_input!r} needs an estimator")
+    if estimator is not None and estimator.schema != spec.regime:
+        raise ValueError(f"the estimator was trained on the {estimator.schema!r} schema, not {spec.regime!r}")
+    cfg = spec.env_config
     sampler = ScenarioSampler(
-        ranges=ranges if ranges is not None else DEFAULT_RANGES[regime],
-        trajectories=tuple(trajectories) if trajectories is not None else DEFAULT_TRAJECTORIES[regime],
-        start=start,
+        ranges=spec.ranges if spec.ranges is not None else DEFAULT_RANGES[spec.regime],
+        trajectories=tuple(spec.trajectories) if spec.trajectories is not None else DEFAULT_TRAJECTORIES[spec.regime],
+        start=spec.start,
     )
-    base = QuadWindEnv(cfg, batch_size=[num_envs], device=device, scenario_sampler=sampler, seed=seed, compile_step=compile_step)
-    source = "truth" if wind_input == "truth" else "estimate"
+    base = QuadWindEnv(cfg, batch_size=[spec.num_envs], device=spec.device, scenario_sampler=sampler, seed=spec.seed,
+                       compile_step=spec.compile_step)
+    source = "truth" if spec.wind_input == "truth" else "estimate"
+    align = cfg.timing.log_every_control_steps // cfg.residual.hold_control_steps
     transforms = [
-        EpisodeControl(desync_steps, seed=seed, align=cfg.timing.log_every_control_steps // cfg.residual.hold_control_steps),
-        WindEstimate(estimator_bundle if source == "estimate" else None, source=source, config=cfg),
+        EpisodeControl(spec.desync_steps, seed=spec.seed, align=align),
+        WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg),
         PolicyObservation(cfg),
-        RunningObsNorm(in_keys=["observation"], decay=1.0, eps=1e-4, reduce_batch_dims=True),
+        RunningObsNorm(in_keys=[OBSERVATION_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True),
     ]
-    if obs_clip is not None:
-        transforms.append(ClipTransform(in_keys=["observation"], low=-obs_clip, high=obs_clip))
-    if wind_input == "zero":
+    if spec.obs_clip is not None:
+        transforms.append(ClipTransform(in_keys=[OBSERVATION_KEY], low=-spec.obs_clip, high=spec.obs_clip))
+    if spec.wind_input == "zero":
         transforms.append(WindZero())
     transforms += [RewardSum(in_keys=["reward"], out_keys=["episode_reward"], reset_keys=["_reset"]), StepCounter()]
     env = TransformedEnv(base, Compose(*transforms))
@@ -171,6 +152,34 @@ def make_env(
     if freeze_norm or (freeze_norm is None and vecnorm_state is not None):
         vecnorm(env).freeze()
     return env
+
+
+def make_env(
+    regime: Regime,
+    estimator: WindEstimator | None,
+    num_envs: int,
+    *,
+    vecnorm_state: dict | None = None,
+    freeze_norm: bool | None = None,
+    **settings,
+) -> TransformedEnv:
+    """``build_env(RLEnvSpec(regime, num_envs, **settings), estimator, ...)``: ``settings`` are
+    :class:`RLEnvSpec` fields (``wind_input``, ``config``, ``ema_tau_s``, ...)."""
+    unknown = sorted(set(settings) - set(RLEnvSpec.__dataclass_fields__))
+    if unknown:
+        raise TypeError(f"make_env: unknown settings {unknown}; allowed: the RLEnvSpec fields {sorted(RLEnvSpec.__dataclass_fields__)}")
+    spec = RLEnvSpec(regime=regime, num_envs=num_envs, **settings)
+    return build_env(spec, estimator, vecnorm_state=vecnorm_state, freeze_norm=freeze_norm)
+
+
+def policy_ema_tau_s(env_spec: dict, estimator: WindEstimator | None) -> float:
+    """The EMA time constant a policy trained with: its checkpoint's ``env_spec["ema_tau_s"]``, or,
+    for policies saved before the env spec recorded it, the one their estimator's checkpoint held
+    (the env then read it from there), else the default."""
+    if "ema_tau_s" in env_spec:
+        return float(env_spec["ema_tau_s"])
+    recorded = getattr(estimator, "ema_tau_s", None)
+    return DEFAULT_TAU_S if recorded is None else float(recorded)
 
 
 def find_transform(env: TransformedEnv, cls: type[T]) -> T:
@@ -202,44 +211,21 @@ def load_vecnorm_state(env: TransformedEnv, state: dict) -> None:
     vecnorm(env).load_state_dict(state)
 
 
-@dataclass(frozen=True)
-class RLEnvSpec:
-    """Everything :func:`make_env` needs, as plain values (picklable; the estimator by path)."""
-
-    regime: Regime = "horizontal"
-    num_envs: int = 64
-    wind_input: WindInput = "estimate"
-    device: str = "cpu"
-    seed: int = 0
-    estimator_path: str | None = None  # None: the shipped estimator (or untrained, below)
-    untrained_estimator: bool = False
-    config: EnvConfig | None = None
-    trajectories: tuple[str, ...] | None = None
-    ranges: RegimeRanges | None = None
-    start: Literal["ground", "pattern"] = "ground"
-    desync_steps: int = 0
-    obs_clip: float | None = 10.0
-    compile_step: bool = False
-
-    @property
-    def env_config(self) -> EnvConfig:
-        return self.config if self.config is not None else regime_config(self.regime)
-
-
 @dataclass
 class EnvFactory:
-    """Picklable env constructor: ``EnvFactory(spec)()`` builds ``make_env`` from ``spec``.
+    """Picklable env constructor: ``EnvFactory(spec)()`` is ``build_env(spec, estimator)``;
+    keyword overrides replace spec fields (``vecnorm_state`` / ``freeze_norm`` go to ``build_env``).
 
     ``bundle`` may be given to share an already loaded estimator in-process (it is dropped when
     the factory is pickled: other processes load it from ``spec.estimator_path``)."""
 
     spec: RLEnvSpec
-    bundle: EstimatorBundle | None = field(default=None, repr=False)
+    bundle: WindEstimator | None = field(default=None, repr=False)
 
     def __getstate__(self):
         return {"spec": self.spec, "bundle": None}
 
-    def estimator(self) -> EstimatorBundle | None:
+    def estimator(self) -> WindEstimator | None:
         s = self.spec
         if s.wind_input == "truth" and s.estimator_path is None and not s.untrained_estimator:
             return None
@@ -250,34 +236,18 @@ class EnvFactory:
         return self.bundle
 
     def __call__(self, **overrides) -> TransformedEnv:
-        s = replace(self.spec, **{k: v for k, v in overrides.items() if k in RLEnvSpec.__dataclass_fields__})
-        extra = {k: v for k, v in overrides.items() if k not in RLEnvSpec.__dataclass_fields__}
-        return make_env(
-            s.regime,
-            self.estimator(),
-            s.num_envs,
-            s.wind_input,
-            s.device,
-            s.seed,
-            config=s.env_config,
-            trajectories=s.trajectories,
-            ranges=s.ranges,
-            start=s.start,
-            desync_steps=s.desync_steps,
-            obs_clip=s.obs_clip,
-            compile_step=s.compile_step,
-            **extra,
-        )
+        fields = RLEnvSpec.__dataclass_fields__
+        spec = replace(self.spec, **{k: v for k, v in overrides.items() if k in fields})
+        return build_env(spec, self.estimator(), **{k: v for k, v in overrides.items() if k not in fields})
 
 
 __all__ = [
     "EnvFactory",
     "RLEnvSpec",
+    "build_env",
     "make_env",
+    "policy_ema_tau_s",
     "regime_config",
-    "untrained_estimator",
-    "load_estimator",
-    "default_estimator_path",
     "find_transform",
     "vecnorm",
     "vecnorm_state_dict",

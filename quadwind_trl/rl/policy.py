@@ -19,7 +19,7 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
 from ..config import config_to_dict
-from ..transforms import OBSERVATION_CHANNELS, OBSERVATION_DIM
+from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM
 from ..validation import load_checkpoint
 from .config import ACTIVATIONS, PPOConfig
 from .envs import RLEnvSpec

@@ -21,7 +21,7 @@ from torchrl.record.loggers import Logger
 
 from ..envs.runner import FlightResults
 from ..manifest import command_line, git_commit, save_atomic, write_json
-from ..transforms import OBSERVATION_CHANNELS
+from ..keys import OBSERVATION_CHANNELS
 from .config import Curriculum, PPOConfig
 from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm_state_dict, wind_estimate
 from .paired import fly_paired, paired_metrics

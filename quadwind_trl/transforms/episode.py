@@ -23,7 +23,7 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import Transform
 
-from .history import reset_mask
+from .reset import reset_mask
 
 
 class EpisodeControl(Transform):

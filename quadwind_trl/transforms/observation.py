@@ -25,7 +25,7 @@ index    name                    source
 =======  ======================  ================================================================
 
 Channels 0-12 are computed by the estimator feature extractor's own code (the first 13 channels of
-:class:`~quadwind_trl.data.features.FeatureExtractor`, evaluated at every control step), so the
+:class:`~quadwind_trl.estimator.features.FeatureExtractor`, evaluated at every control step), so the
 policy and the estimator see identical definitions. Everything comes from the sensors, the
 reference and the controller's own outputs: no simulator truth enters the observation (except
 ``wind_hat`` under the oracle ``source="truth"``, and ``pos_error`` if the env's controller is
@@ -49,19 +49,9 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Transform
 
 from ..config import GRAVITY_M_S2, EnvConfig
-from ..data.features import FeatureExtractor, kinematic_channels
-from .wind import WIND_KEY
+from ..estimator.features import FeatureExtractor
+from ..keys import OBSERVATION_DIM, OBSERVATION_KEY, WIND_KEY
 
-OBSERVATION_CHANNELS: tuple[str, ...] = ("alt", "vel_fwd", "vel_left") + kinematic_channels("ref_relative")[3:] + (
-    "wind_fwd", "wind_left",
-    "err_fwd", "err_left", "err_U",
-    "pd_thrust_over_weight",
-    "ff_T", "ff_x", "ff_y", "ff_z",
-)  # fmt: skip
-OBSERVATION_DIM = len(OBSERVATION_CHANNELS)
-WIND_INDICES: tuple[int, int] = (13, 14)
-assert OBSERVATION_DIM == 23
-assert OBSERVATION_CHANNELS[WIND_INDICES[0]] == "wind_fwd" and OBSERVATION_CHANNELS[WIND_INDICES[1]] == "wind_left"
 _YAW = 9  # measured yaw in ``meas`` (envs.sensors.SENSOR_CHANNELS)
 
 
@@ -80,7 +70,7 @@ class PolicyObservation(Transform):
     leaves them in place. Stateless.
     """
 
-    def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = "observation"):
+    def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = OBSERVATION_KEY):
         cfg = config or EnvConfig()
         in_keys = ["meas", "ref_pos", "ref_yaw", "pos_error", "pd_wrench", "ff_wrench", wind_key]
         super().__init__(in_keys=in_keys, out_keys=[out_key])

@@ -1,12 +1,14 @@
 """The wind channels of the policy: the frozen estimator + EMA (``WindEstimate``) and the ablation
 (``WindZero``).
 
-``WindEstimate(bundle)`` keeps a :class:`~quadwind_trl.transforms.history.FeatureRing` per sub-env;
-at every 10 Hz log tick of a row it queries the frozen estimator on that row's 60-sample feature
-window (left-padded by repeating the episode's first sample until 60 samples exist), de-standardises
-the output (``EstimatorBundle.predict``), filters it with the spike-gated EMA
-(:mod:`quadwind_trl.modules.ema`, ``tau = bundle.ema_tau_s``, ``dt`` = the log interval) and holds
-the filtered value until the row's next tick. It writes ``wind_hat`` ``[2]`` = (north, east) m/s.
+``WindEstimate(estimator)`` takes any :class:`~quadwind_trl.estimator.base.WindEstimator` (the
+trained ``EstimatorBundle``, or a user's own class) and keeps a
+:class:`~quadwind_trl.estimator.ring.FeatureRing` of its feature schema per sub-env; at every
+10 Hz log tick of a row it queries the estimator on that row's ``estimator.window``-sample feature
+window (left-padded by repeating the episode's first sample until it is full), filters the
+(north, east) output with the spike-gated EMA (:mod:`quadwind_trl.estimator.ema`; ``tau`` from
+``ema``, default ``EMAConfig()``; ``dt`` = the log interval) and holds the filtered value until the
+row's next tick. It writes ``wind_hat`` ``[2]`` = (north, east) m/s.
 
 Only rows that tick are evaluated (gathered, then scattered back), so the estimator's cost is one
 window per row per 10 control steps whatever the rows' phases.
@@ -14,7 +16,9 @@ window per row per 10 control steps whatever the rows' phases.
 The estimator is frozen (``eval()``, ``requires_grad_(False)``) and held as a plain attribute of
 the transform, not a registered sub-module: ``transform.parameters()`` and ``state_dict()`` do not
 contain it, so no optimiser built from the env, the loss or the policy can ever see it, and policy
-checkpoints do not duplicate it (they record the estimator's path and manifest instead).
+checkpoints do not duplicate it (they record the estimator's path and manifest instead). The
+estimator is expected frozen (``EstimatorBundle`` loads frozen); the transform only calls
+``predict`` under ``torch.no_grad()``.
 
 ``source="truth"`` is the oracle: ``wind_hat`` is the true turbulence-free mean wind at the
 vehicle, ``truth.mean_wind`` (ENU) reordered to (north, east), written at every control step,
@@ -33,12 +37,12 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Transform
 
 from ..config import EnvConfig
-from ..data.features import make_extractor
-from ..modules.ema import EMAConfig, ema_init, ema_reset_rows, ema_step
-from ..modules.wind_estimator import EstimatorBundle
-from .history import WINDOW, FeatureRing, reset_mask
-
-WIND_KEY = "wind_hat"
+from ..estimator.base import WindEstimator
+from ..estimator.ema import EMAConfig, ema_init, ema_reset_rows, ema_step
+from ..estimator.features import make_extractor
+from ..estimator.ring import FeatureRing
+from ..keys import MEAN_WIND_KEY, OBSERVATION_KEY, WIND_INDICES, WIND_KEY
+from .reset import reset_mask
 
 
 class WindEstimate(Transform):
@@ -46,9 +50,10 @@ class WindEstimate(Transform):
     (``source="estimate"``) or the true mean wind (``source="truth"``).
 
     Args:
-        bundle: the trained estimator (ignored, may be None, for ``source="truth"``).
-        ema: the post-filter; default ``EMAConfig(tau_s=bundle.ema_tau_s)`` with ``dt_s`` the
-            config's log interval. ``EMAConfig(tau_s=0)`` passes the raw output through.
+        estimator: a :class:`~quadwind_trl.estimator.base.WindEstimator` (ignored, may be None,
+            for ``source="truth"``).
+        ema: the post-filter; default ``EMAConfig()``; its ``dt_s`` is set to the config's log
+            interval. ``EMAConfig(tau_s=0)`` passes the raw output through.
         source: ``"estimate"`` or ``"truth"``.
         config: the env config (vehicle mass for the features, log rate).
         out_key: the entry written (default ``"wind_hat"``).
@@ -56,7 +61,7 @@ class WindEstimate(Transform):
 
     def __init__(
         self,
-        bundle: EstimatorBundle | None = None,
+        estimator: WindEstimator | None = None,
         ema: EMAConfig | None = None,
         *,
         source: Literal["estimate", "truth"] = "estimate",
@@ -69,30 +74,27 @@ class WindEstimate(Transform):
         log_dt = cfg.timing.log_dt_s
         self.source = source
         if source == "estimate":
-            if bundle is None:
-                raise ValueError("WindEstimate(source='estimate') needs an EstimatorBundle")
-            extractor = make_extractor(bundle.schema, cfg)
-            if tuple(bundle.channels) != tuple(extractor.channels):
+            if estimator is None:
+                raise ValueError("WindEstimate(source='estimate') needs an estimator")
+            if not isinstance(estimator, WindEstimator):
+                missing = [m for m in ("schema", "channels", "window", "predict", "to") if not hasattr(estimator, m)]
+                raise TypeError(f"WindEstimate: {type(estimator).__name__} is not a WindEstimator (missing {missing})")
+            extractor = make_extractor(estimator.schema, cfg)
+            if tuple(estimator.channels) != tuple(extractor.channels):
                 raise ValueError(
-                    f"estimator channels ({len(bundle.channels)}) differ from the {bundle.schema!r} feature "
+                    f"estimator channels ({len(estimator.channels)}) differ from the {estimator.schema!r} feature "
                     f"extractor's ({extractor.num_channels}): retrain or pick the matching schema"
                 )
             in_keys = list(extractor.raw_keys) + ["step"]
         else:
             extractor = None
-            in_keys = [("truth", "mean_wind")]
+            in_keys = [MEAN_WIND_KEY]
         super().__init__(in_keys=in_keys, out_keys=[out_key])
         self.out_key = out_key
-        # plain attributes (not sub-modules): no parameters, no state_dict entries
-        self.bundle = bundle
-        if bundle is not None:
-            bundle.model.eval().requires_grad_(False)
-        self.ema_config = ema if ema is not None else EMAConfig(tau_s=bundle.ema_tau_s if bundle else 3.0, dt_s=log_dt)
-        if abs(self.ema_config.dt_s - log_dt) > 1e-9:
-            self.ema_config = replace(self.ema_config, dt_s=log_dt)
-        window = getattr(getattr(bundle, "model", None), "cfg", None)
-        window = getattr(window, "window", WINDOW)
-        self.ring = FeatureRing(extractor, window, cfg.timing.log_every_control_steps) if extractor else None
+        # a plain attribute (not a sub-module): no parameters, no state_dict entries
+        self.estimator = estimator
+        self.ema_config = replace(ema if ema is not None else EMAConfig(), dt_s=log_dt)
+        self.ring = FeatureRing(extractor, estimator.window, cfg.timing.log_every_control_steps) if extractor else None
         self.ema_state: dict[str, Tensor] | None = None
         self.value: Tensor | None = None  # [N, 2] held output
         self.estimator_calls = 0  # windows evaluated (for benchmarks)
@@ -105,8 +107,7 @@ class WindEstimate(Transform):
             self.ring.init(n, device)
             self.ema_state = ema_init(n, 2, device)
             self.value = torch.zeros(n, 2, device=device)
-            if self.bundle.feature_mean.device != torch.device(device):
-                self.bundle.to(device)
+            self.estimator = self.estimator.to(device)
 
     @torch.no_grad()
     def _tick(self, record: TensorDictBase, mask: Tensor) -> None:
@@ -114,7 +115,7 @@ class WindEstimate(Transform):
         if idx.numel() == 0:
             return
         t0 = time.perf_counter()
-        pred = self.bundle.predict(self.ring.windows(idx))  # [B, 2] (north, east), m/s
+        pred = self.estimator.predict(self.ring.windows(idx))  # [B, 2] (north, east), m/s
         self.estimator_seconds += time.perf_counter() - t0
         self.estimator_calls += idx.numel()
         sub = {k: v[idx] for k, v in self.ema_state.items()}
@@ -125,7 +126,7 @@ class WindEstimate(Transform):
 
     @staticmethod
     def _truth(td: TensorDictBase) -> Tensor:
-        mean = td.get(("truth", "mean_wind"))
+        mean = td.get(MEAN_WIND_KEY)
         return torch.stack((mean[..., 1], mean[..., 0]), -1)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
@@ -158,24 +159,22 @@ class WindEstimate(Transform):
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         # Deliberately unsupported: the estimate needs each flight's feature window and EMA state,
         # which stored rows (``forward``'s input) do not carry. Offline estimates of whole flights
-        # come from ``evaluation.estimation.predict_flights`` and ``modules.ema.ema_scan``.
+        # come from ``evaluation.estimation.predict_flights`` and ``estimator.ema.ema_scan``.
         raise NotImplementedError("WindEstimate is stateful: use it inside a TransformedEnv")
 
 
 class WindZero(Transform):
     """Forces the wind channels to exactly zero (the perception ablation); specs unchanged.
 
-    ``WindZero()`` zeroes channels :data:`~quadwind_trl.transforms.observation.WIND_INDICES`
-    (13, 14) of ``"observation"``: placed last in the stack (after normalisation) it makes the
+    ``WindZero()`` zeroes channels :data:`~quadwind_trl.keys.WIND_INDICES` (``wind_fwd``,
+    ``wind_left``) of ``"observation"``: placed last in the stack (after normalisation) it makes the
     policy's two wind inputs exactly 0 and leaves every other input bit-identical.
     ``WindZero(in_key="wind_hat", indices=None)`` zeroes the whole raw ``wind_hat`` entry instead.
     """
 
-    def __init__(self, in_key: str = "observation", indices: Sequence[int] | None = None):
+    def __init__(self, in_key: str = OBSERVATION_KEY, indices: Sequence[int] | None = None):
         super().__init__(in_keys=[in_key], out_keys=[in_key])
-        if indices is None and in_key == "observation":
-            from .observation import WIND_INDICES
-
+        if indices is None and in_key == OBSERVATION_KEY:
             indices = WIND_INDICES
         self.indices = None if indices is None else tuple(int(i) for i in indices)
         if self.indices is not None:  # a buffer: moves with the transform, no copy per step

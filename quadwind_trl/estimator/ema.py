@@ -22,13 +22,23 @@ import torch
 from torch import Tensor
 
 
+#: the deployed time constant (paper); the one default of the env's ``ema_tau_s``
+DEFAULT_TAU_S = 3.0
+
+
 @dataclass(frozen=True)
 class EMAConfig:
-    tau_s: float = 3.0  # paper: the deployed time constant
+    tau_s: float = DEFAULT_TAU_S  # 0 passes the raw estimate through
     dt_s: float = 0.1  # the 10 Hz flight record
     spike_factor: float = 3.0  # paper: gate innovations beyond 3x the running scale
     scale_tau_s: float = 10.0  # ours: how fast the innovation scale adapts
     initial_scale: float = 1.0  # m/s
+
+    def __post_init__(self):
+        for name in ("tau_s", "dt_s", "spike_factor", "scale_tau_s", "initial_scale"):
+            value = getattr(self, name)
+            if not (value >= 0 if name == "tau_s" else value > 0):
+                raise ValueError(f"EMAConfig.{name}={value!r}; allowed: {'>= 0' if name == 'tau_s' else '> 0'}")
 
 
 def ema_init(batch: int, channels: int, device: torch.device | str | None = None) -> dict[str, Tensor]:

@@ -3,14 +3,14 @@ configuration" of both regimes).
 
 Adam (3e-4, weight decay 1e-5), linear warm-up then cosine decay per optimiser step, batch 256,
 Gaussian input noise on the standardised features, the wind-case-balanced sampler, the loss of
-:mod:`quadwind_trl.modules.estimator_loss`. Model selection and early stopping on the validation
+:mod:`quadwind_trl.estimator.loss`. Model selection and early stopping on the validation
 per-window vector RMSE (m/s), evaluated every epoch.
 
 Artifacts of a run writing to ``out`` (e.g. ``quadwind_trl/checkpoints/estimator_horizontal.pt``):
 
 * ``out`` and its manifest ``out`` with suffix ``.json``: the best checkpoint as an
-  :class:`EstimatorBundle` (weights, schema, channel names, feature and label standardisation, EMA
-  time constant) and its manifest (command, configuration, git commit, dataset manifest hash,
+  :class:`EstimatorBundle` (weights, schema, channel names, feature and label standardisation)
+  and its manifest (command, configuration, git commit, dataset manifest hash,
   validation and test metrics). Written atomically once, when training ends; until then the best
   model so far lives in ``log_dir/<exp_name>/best.pt`` (+ ``.json``), so an interrupted run never
   leaves a half-trained model at ``out``.
@@ -38,13 +38,14 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..data.features import make_extractor
 from ..data.generate import load_dataset
 from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
 from ..evaluation.estimation import estimation_metrics
 from ..manifest import git_commit, repo_relative, save_atomic
-from ..modules.estimator_loss import EstimatorLoss, EstimatorLossConfig
-from ..modules.wind_estimator import AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
+from .checkpoint import EstimatorBundle
+from .features import make_extractor
+from .loss import EstimatorLoss, EstimatorLossConfig
+from .model import AttentionGRUEstimator, EstimatorConfig
 
 REGIMES = ("horizontal", "vertical")
 QUICK_FRACTIONS = (1 / 3, 1 / 3, 1 / 3)  # --quick on a 3-case dataset: one case per split
@@ -70,7 +71,6 @@ class TrainConfig:
     eval_batch_size: int = 1024  # measured: batch 4096 is 2-3x slower per window than 256-1024 (cache)
     seed: int = 0
     compile: bool = False
-    ema_tau_s: float = 3.0  # paper: the deployed post-filter time constant (the bundle's default)
     log_every_steps: int = 50
     loss: EstimatorLossConfig = field(default_factory=EstimatorLossConfig)
 
@@ -277,8 +277,11 @@ def resume_path(out: str | os.PathLike, log_dir: str | os.PathLike = "runs/estim
 
 
 @dataclass
-class TrainResult:
-    bundle: EstimatorBundle
+class EstimatorTrainResult:
+    """What :func:`train_estimator` returns (``bundle`` is None when stopped early by
+    ``stop_after_epochs``)."""
+
+    bundle: EstimatorBundle | None
     history: list[dict]
     best_epoch: int
     best_val: dict
@@ -289,19 +292,190 @@ class TrainResult:
     initial_val: dict | None = None  # validation metrics of the untrained model
 
 
-def _make_bundle(model: AttentionGRUEstimator, wd: WindowedData, schema: str, cfg: TrainConfig, manifest: dict) -> EstimatorBundle:
-    frozen = copy.deepcopy(model).eval().requires_grad_(False)
+def _make_bundle(model: AttentionGRUEstimator, wd: WindowedData, schema: str, manifest: dict) -> EstimatorBundle:
     return EstimatorBundle(
-        model=frozen,
+        model=copy.deepcopy(model),  # the bundle freezes its copy
         schema=schema,
         channels=tuple(wd.channels),
         feature_mean=wd.feature_stats.mean.clone(),
         feature_std=wd.feature_stats.std.clone(),
         label_mean=wd.label_stats.mean.clone(),
         label_std=wd.label_stats.std.clone(),
-        ema_tau_s=cfg.ema_tau_s,
         manifest=manifest,
     )
+
+
+def _resume_state(ed: EstimatorData, cfg: TrainConfig, out: Path, state_path: Path, resume: bool, overwrite: bool) -> dict | None:
+    """The interrupted run's state to continue (``resume``), else None after checking that
+    nothing would be overwritten by accident."""
+    if resume:
+        if not state_path.exists():
+            raise FileNotFoundError(f"--resume: no resume state at {state_path}")
+        state = torch.load(state_path, map_location="cpu", weights_only=False)
+        saved = TrainConfig.from_dict(state["config"])
+        if saved != cfg:
+            diff = {k: (v, getattr(cfg, k)) for k, v in saved.to_dict().items() if v != cfg.to_dict()[k]}
+            raise ValueError(f"--resume: the configuration differs from the interrupted run's: {diff}")
+        if state["dataset"]["manifest_sha256"] != ed.info["manifest_sha256"]:
+            raise ValueError("--resume: the dataset differs from the interrupted run's (manifest hash)")
+        return state
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} exists: pass overwrite=True (--overwrite) to replace it")
+    if state_path.exists() and not overwrite:
+        raise FileExistsError(f"an interrupted run writing {out} left {state_path}: pass resume=True (--resume) or overwrite=True (--overwrite)")
+    if state_path.exists():  # overwrite: the stale state must not be resumed later
+        state_path.unlink()
+    return None
+
+
+@dataclass
+class _Progress:
+    """What the run has achieved so far (saved every epoch in the resume state)."""
+
+    history: list[dict] = field(default_factory=list)
+    best: dict = field(default_factory=lambda: {"per_window_vector_rmse": math.inf})
+    best_epoch: int = -1
+    bad_epochs: int = 0
+    start_epoch: int = 0
+    wall_before: float = 0.0
+    initial_val: dict | None = None  # validation metrics of the untrained model
+
+    def update(self, val: dict, epoch: int) -> bool:
+        """Record epoch ``epoch``'s validation metrics; True if they are the best so far."""
+        improved = val["per_window_vector_rmse"] < self.best["per_window_vector_rmse"]
+        if improved:
+            self.best, self.best_epoch, self.bad_epochs = val, epoch, 0
+        else:
+            self.bad_epochs += 1
+        return improved
+
+
+class _Trainer:
+    """The model, loss, optimiser, schedule and sampler of one run, and its per-epoch step."""
+
+    def __init__(self, wd: WindowedData, cfg: TrainConfig):
+        self.wd, self.cfg = wd, cfg
+        torch.manual_seed(cfg.seed)
+        self.mcfg = EstimatorConfig(
+            in_channels=len(wd.channels), feature_dropout=cfg.feature_dropout, dropout=cfg.head_dropout, window=wd.window
+        )
+        self.model = AttentionGRUEstimator(self.mcfg)
+        self.loss_fn = EstimatorLoss(wd.label_stats.mean, wd.label_stats.std, cfg.loss)
+        self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        self.per_epoch = cfg.windows_per_epoch or wd.tables["train"].shape[0]
+        self.steps_per_epoch = math.ceil(self.per_epoch / cfg.batch_size)
+        total_steps = self.steps_per_epoch * cfg.epochs
+        warmup = int(round(cfg.warmup_epochs * self.steps_per_epoch))
+        self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, lambda s: lr_factor(s, warmup, total_steps, cfg.min_lr_ratio))
+        self.sampler = wd.sampler("train", seed=cfg.seed, num_samples=self.per_epoch)
+        self.train_ds = wd.dataset("train")
+        self.val_table = strided_table(wd, "val", cfg.val_stride)
+        self.n_params = sum(p.numel() for p in self.model.parameters())
+        self.train_model = torch.compile(self.model) if cfg.compile else self.model
+
+    def state_dict(self) -> dict:
+        return {"model": self.model.state_dict(), "optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict()}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.model.load_state_dict(state["model"])
+        self.opt.load_state_dict(state["optimizer"])
+        self.sched.load_state_dict(state["scheduler"])
+
+    def validate(self) -> dict[str, float]:
+        return evaluate_table(self.model, self.wd, self.val_table, self.loss_fn, self.cfg.eval_batch_size)
+
+    def train_epoch(self, epoch: int, global_step: int, logger, progress: bool) -> tuple[dict[str, float], int, int]:
+        """One epoch of the balanced sampler's draws: ``(mean train loss terms, windows seen,
+        global step)``; every epoch reseeds from ``(seed, epoch)`` so a resumed run retraces."""
+        from tqdm.auto import tqdm
+
+        cfg, wd = self.cfg, self.wd
+        torch.manual_seed(cfg.seed * 100_003 + epoch)
+        self.sampler.set_epoch(epoch)
+        order = torch.as_tensor(list(iter(self.sampler)))
+        self.model.train()
+        sums = {"loss": 0.0, "huber": 0.0, "speed": 0.0, "direction": 0.0}
+        n_seen = 0
+        inner = tqdm(range(self.steps_per_epoch), desc=f"epoch {epoch}", unit="step", leave=False, disable=not progress)
+        for step in inner:
+            idx = order[step * cfg.batch_size : (step + 1) * cfg.batch_size]
+            x, y = self.train_ds.batch(idx)
+            y = wd.label_stats(y)
+            if cfg.input_noise_std > 0:
+                x = x + cfg.input_noise_std * torch.randn_like(x)
+            loss, terms = self.loss_fn(self.train_model(x), y)
+            self.opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if cfg.grad_clip_norm:
+                torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.grad_clip_norm)
+            self.opt.step()
+            self.sched.step()
+            global_step += 1
+            b = idx.numel()
+            n_seen += b
+            sums["loss"] += float(loss.detach()) * b
+            for k, v in terms.items():
+                sums[k] += float(v) * b
+            if cfg.log_every_steps and global_step % cfg.log_every_steps == 0:
+                logger.log_scalar("train/step_loss", float(loss.detach()), step=global_step)
+            if progress and step % 20 == 0:
+                inner.set_postfix(loss=f"{float(loss.detach()):.4f}")
+        return {k: v / max(n_seen, 1) for k, v in sums.items()}, n_seen, global_step
+
+
+def _epoch_row(epoch: int, lr: float, train: dict, val: dict, n_seen: int, train_time: float, t_epoch: float, wall: float) -> dict:
+    return {
+        "epoch": epoch,
+        "lr": lr,
+        **{f"train_{k}": v for k, v in train.items()},
+        **{f"val_{k}": v for k, v in headline(val).items()},
+        "train_windows_per_s": n_seen / train_time,
+        "epoch_time_s": time.perf_counter() - t_epoch,
+        "wall_time_s": wall,
+    }
+
+
+def _report_epoch(epoch: int, row: dict, train: dict, val: dict, n_seen: int, train_time: float, improved: bool, logger) -> None:
+    from tqdm.auto import tqdm
+
+    for k, v in row.items():
+        if k != "epoch":
+            logger.log_scalar(k.replace("train_", "train/", 1).replace("val_", "val/", 1), float(v), step=epoch)
+    tqdm.write(
+        f"epoch {epoch}: train loss {train['loss']:.4f}, val loss {val['loss']:.4f}, val per-window RMSE "
+        f"{val['per_window_vector_rmse']:.3f} m/s, dir MAE {val['direction_mae_deg']:.2f} deg, per-flight "
+        f"{val.get('per_flight_vector_rmse', float('nan')):.3f} m/s, {n_seen / train_time:.0f} windows/s, lr {row['lr']:.2e}"
+        + (" *" if improved else "")
+    )
+
+
+def _finish(ed: EstimatorData, cfg: TrainConfig, trainer: _Trainer, run: _Progress, best_path: Path, out: Path,
+            train_wall: float, logger) -> tuple[EstimatorBundle, dict]:
+    """The best checkpoint's test metrics go into its manifest; it is written to ``out``."""
+    wd = ed.windows
+    bundle = EstimatorBundle.load(best_path, expect_channels=tuple(wd.channels))
+    t_test = time.perf_counter()
+    test_table = strided_table(wd, "test", cfg.test_stride)
+    test = evaluate_table(bundle.model, wd, test_table, trainer.loss_fn, cfg.eval_batch_size) if test_table.shape[0] else {}
+    test_time = time.perf_counter() - t_test
+    manifest = dict(bundle.manifest)
+    manifest.update(
+        epochs_run=len(run.history),
+        history_tail=run.history[-3:],
+        test_stride=cfg.test_stride or wd.stride,
+        metrics={
+            **headline(test),
+            "split": "test",
+            "wall_time_s": round(train_wall, 1),
+            "test_eval_time_s": round(test_time, 1),
+            "best_epoch": run.best_epoch,
+        },
+    )
+    bundle.manifest = manifest
+    bundle.save(out)
+    for k, v in headline(test).items():
+        logger.log_scalar(f"test/{k}", float(v), step=run.best_epoch)
+    return bundle, test
 
 
 def train_estimator(
@@ -316,7 +490,7 @@ def train_estimator(
     progress: bool = True,
     command: str | None = None,
     stop_after_epochs: int | None = None,
-) -> TrainResult:
+) -> EstimatorTrainResult:
     """Train on ``ed``'s training split, select on validation, write the best bundle to ``out``.
 
     ``stop_after_epochs`` ends this call after that many epochs (as an interruption would, the
@@ -331,67 +505,28 @@ def train_estimator(
     out.parent.mkdir(parents=True, exist_ok=True)
     state_path = resume_path(out, log_dir)
     Path(log_dir).mkdir(parents=True, exist_ok=True)
-    state = None
-    if resume:
-        if not state_path.exists():
-            raise FileNotFoundError(f"--resume: no resume state at {state_path}")
-        state = torch.load(state_path, map_location="cpu", weights_only=False)
-        saved = TrainConfig.from_dict(state["config"])
-        if saved != cfg:
-            diff = {k: (v, getattr(cfg, k)) for k, v in saved.to_dict().items() if v != cfg.to_dict()[k]}
-            raise ValueError(f"--resume: the configuration differs from the interrupted run's: {diff}")
-        if state["dataset"]["manifest_sha256"] != ed.info["manifest_sha256"]:
-            raise ValueError("--resume: the dataset differs from the interrupted run's (manifest hash)")
-    elif out.exists() and not overwrite:
-        raise FileExistsError(f"{out} exists: pass overwrite=True (--overwrite) to replace it")
-    elif state_path.exists() and not overwrite:
-        raise FileExistsError(f"an interrupted run writing {out} left {state_path}: pass resume=True (--resume) or overwrite=True (--overwrite)")
-    elif state_path.exists():  # overwrite: the stale state must not be resumed later
-        state_path.unlink()
+    state = _resume_state(ed, cfg, out, state_path, resume, overwrite)
 
-    torch.manual_seed(cfg.seed)
-    mcfg = EstimatorConfig(
-        in_channels=len(wd.channels), feature_dropout=cfg.feature_dropout, dropout=cfg.head_dropout, window=wd.window
-    )
-    model = AttentionGRUEstimator(mcfg)
-    loss_fn = EstimatorLoss(wd.label_stats.mean, wd.label_stats.std, cfg.loss)
-    opt = torch.optim.Adam(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    train_table = wd.tables["train"]
-    per_epoch = cfg.windows_per_epoch or train_table.shape[0]
-    steps_per_epoch = math.ceil(per_epoch / cfg.batch_size)
-    total_steps = steps_per_epoch * cfg.epochs
-    warmup = int(round(cfg.warmup_epochs * steps_per_epoch))
-    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_factor(s, warmup, total_steps, cfg.min_lr_ratio))
-    sampler = wd.sampler("train", seed=cfg.seed, num_samples=per_epoch)
-    train_ds = wd.dataset("train")
-    val_table = strided_table(wd, "val", cfg.val_stride)
-    n_params = sum(p.numel() for p in model.parameters())
-
-    history: list[dict] = []
-    best = {"per_window_vector_rmse": math.inf}
-    best_epoch, bad_epochs, start_epoch, wall_before = -1, 0, 0, 0.0
-    initial_val = None
+    trainer = _Trainer(wd, cfg)
+    run = _Progress()
     if state is not None:
-        model.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-        history, best, best_epoch = state["history"], state["best_val"], state["best_epoch"]
-        bad_epochs, start_epoch, wall_before = state["bad_epochs"], state["epoch"] + 1, state["wall_time_s"]
-        exp_name, initial_val = state["exp_name"], state.get("initial_val")
+        trainer.load_state_dict(state)
+        run = _Progress(state["history"], state["best_val"], state["best_epoch"], state["bad_epochs"],
+                        state["epoch"] + 1, state["wall_time_s"], state.get("initial_val"))
+        exp_name = state["exp_name"]
     if exp_name is None:
         exp_name = f"estimator_{cfg.regime}_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}"
     logger = CSVLogger(exp_name=exp_name, log_dir=str(log_dir))
     best_path = Path(log_dir) / exp_name / "best.pt"  # best so far; copied to ``out`` at the end
     best_path.parent.mkdir(parents=True, exist_ok=True)
-    train_model = torch.compile(model) if cfg.compile else model
 
     base_manifest = {
         "command": command,
         "regime": cfg.regime,
         "schema": cfg.regime,
         "config": cfg.to_dict(),
-        "model": asdict(mcfg),
-        "parameters": n_params,
+        "model": asdict(trainer.mcfg),
+        "parameters": trainer.n_params,
         "git_commit": git_commit(),
         "dataset": ed.info,
         "torch_version": torch.__version__,
@@ -399,144 +534,68 @@ def train_estimator(
         "exp_name": exp_name,
         "log_dir": str(Path(log_dir) / exp_name),
     }
-    if initial_val is None:  # the untrained model: the reference that training must beat
-        initial_val = headline(evaluate_table(model, wd, val_table, loss_fn, cfg.eval_batch_size))
-        base_manifest["initial_val_metrics"] = initial_val
-        logger.log_scalar("val/loss", initial_val["loss"], step=-1)
-        logger.log_scalar("val/per_window_vector_rmse", initial_val["per_window_vector_rmse"], step=-1)
-    base_manifest["initial_val_metrics"] = initial_val
+    if run.initial_val is None:  # the untrained model: the reference that training must beat
+        run.initial_val = headline(trainer.validate())
+        logger.log_scalar("val/loss", run.initial_val["loss"], step=-1)
+        logger.log_scalar("val/per_window_vector_rmse", run.initial_val["per_window_vector_rmse"], step=-1)
+    base_manifest["initial_val_metrics"] = run.initial_val
     print(
-        f"{cfg.regime}: {len(wd.channels)} channels, {n_params:,} parameters; train windows "
-        f"{train_table.shape[0]:,} (drawing {per_epoch:,}/epoch, {steps_per_epoch} steps of {cfg.batch_size}), "
-        f"val windows {val_table.shape[0]:,} (stride {cfg.val_stride or wd.stride}); log {Path(log_dir) / exp_name}",
+        f"{cfg.regime}: {len(wd.channels)} channels, {trainer.n_params:,} parameters; train windows "
+        f"{wd.tables['train'].shape[0]:,} (drawing {trainer.per_epoch:,}/epoch, {trainer.steps_per_epoch} steps of {cfg.batch_size}), "
+        f"val windows {trainer.val_table.shape[0]:,} (stride {cfg.val_stride or wd.stride}); log {Path(log_dir) / exp_name}",
         flush=True,
     )
 
     finished = state is not None and state.get("finished", False)
     t_start = time.perf_counter()
-    epochs = range(start_epoch, cfg.epochs) if not finished else range(0)
-    bar = tqdm(epochs, desc=f"{cfg.regime} estimator", unit="epoch", disable=not progress, initial=start_epoch, total=cfg.epochs)
-    global_step = start_epoch * steps_per_epoch
+    epochs = range(run.start_epoch, cfg.epochs) if not finished else range(0)
+    bar = tqdm(epochs, desc=f"{cfg.regime} estimator", unit="epoch", disable=not progress, initial=run.start_epoch, total=cfg.epochs)
+    global_step = run.start_epoch * trainer.steps_per_epoch
     for epoch in bar:
         t_epoch = time.perf_counter()
-        torch.manual_seed(cfg.seed * 100_003 + epoch)
-        sampler.set_epoch(epoch)
-        order = torch.as_tensor(list(iter(sampler)))
-        model.train()
-        sums = {"loss": 0.0, "huber": 0.0, "speed": 0.0, "direction": 0.0}
-        n_seen = 0
-        inner = tqdm(range(steps_per_epoch), desc=f"epoch {epoch}", unit="step", leave=False, disable=not progress)
-        for step in inner:
-            idx = order[step * cfg.batch_size : (step + 1) * cfg.batch_size]
-            x, y = train_ds.batch(idx)
-            y = wd.label_stats(y)
-            if cfg.input_noise_std > 0:
-                x = x + cfg.input_noise_std * torch.randn_like(x)
-            loss, terms = loss_fn(train_model(x), y)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if cfg.grad_clip_norm:
-                torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip_norm)
-            opt.step()
-            sched.step()
-            global_step += 1
-            b = idx.numel()
-            n_seen += b
-            sums["loss"] += float(loss.detach()) * b
-            for k, v in terms.items():
-                sums[k] += float(v) * b
-            if cfg.log_every_steps and global_step % cfg.log_every_steps == 0:
-                logger.log_scalar("train/step_loss", float(loss.detach()), step=global_step)
-            if progress and step % 20 == 0:
-                inner.set_postfix(loss=f"{float(loss.detach()):.4f}")
+        train, n_seen, global_step = trainer.train_epoch(epoch, global_step, logger, progress)
         train_time = time.perf_counter() - t_epoch
-        train = {k: v / max(n_seen, 1) for k, v in sums.items()}
-        val = evaluate_table(model, wd, val_table, loss_fn, cfg.eval_batch_size)
-        improved = val["per_window_vector_rmse"] < best["per_window_vector_rmse"]
-        if improved:
-            best, best_epoch, bad_epochs = val, epoch, 0
-        else:
-            bad_epochs += 1
-        wall = wall_before + time.perf_counter() - t_start
-        row = {
-            "epoch": epoch,
-            "lr": opt.param_groups[0]["lr"],
-            **{f"train_{k}": v for k, v in train.items()},
-            **{f"val_{k}": v for k, v in headline(val).items()},
-            "train_windows_per_s": n_seen / train_time,
-            "epoch_time_s": time.perf_counter() - t_epoch,
-            "wall_time_s": wall,
-        }
-        history.append(row)
+        val = trainer.validate()
+        improved = run.update(val, epoch)
+        wall = run.wall_before + time.perf_counter() - t_start
+        row = _epoch_row(epoch, trainer.opt.param_groups[0]["lr"], train, val, n_seen, train_time, t_epoch, wall)
+        run.history.append(row)
         if improved:
             manifest = {
                 **base_manifest,
-                "best_epoch": best_epoch,
+                "best_epoch": run.best_epoch,
                 "epochs_run": epoch + 1,
-                "val_metrics": headline(best),
+                "val_metrics": headline(run.best),
                 "metrics": {"wall_time_s": wall, "status": "training (test metrics are written at the end)"},
             }
-            _make_bundle(model, wd, cfg.regime, cfg, manifest).save(best_path)
-        stop = cfg.patience is not None and bad_epochs >= cfg.patience
+            _make_bundle(trainer.model, wd, cfg.regime, manifest).save(best_path)
+        stop = cfg.patience is not None and run.bad_epochs >= cfg.patience
         save_atomic(
             {
                 "config": cfg.to_dict(),
                 "dataset": ed.info,
-                "model": model.state_dict(),
-                "optimizer": opt.state_dict(),
-                "scheduler": sched.state_dict(),
+                **trainer.state_dict(),
                 "epoch": epoch,
-                "history": history,
-                "best_val": best,
-                "best_epoch": best_epoch,
-                "bad_epochs": bad_epochs,
+                "history": run.history,
+                "best_val": run.best,
+                "best_epoch": run.best_epoch,
+                "bad_epochs": run.bad_epochs,
                 "exp_name": exp_name,
-                "initial_val": initial_val,
+                "initial_val": run.initial_val,
                 "wall_time_s": wall,
                 "finished": stop or epoch == cfg.epochs - 1,
             },
             state_path,
         )
-        for k, v in row.items():
-            if k != "epoch":
-                logger.log_scalar(k.replace("train_", "train/", 1).replace("val_", "val/", 1), float(v), step=epoch)
-        tqdm.write(
-            f"epoch {epoch}: train loss {train['loss']:.4f}, val loss {val['loss']:.4f}, val per-window RMSE "
-            f"{val['per_window_vector_rmse']:.3f} m/s, dir MAE {val['direction_mae_deg']:.2f} deg, per-flight "
-            f"{val.get('per_flight_vector_rmse', float('nan')):.3f} m/s, {n_seen / train_time:.0f} windows/s, lr {row['lr']:.2e}"
-            + (" *" if improved else "")
-        )
-        bar.set_postfix(val_rmse=f"{val['per_window_vector_rmse']:.3f}", best=f"{best['per_window_vector_rmse']:.3f}@{best_epoch}")
+        _report_epoch(epoch, row, train, val, n_seen, train_time, improved, logger)
+        bar.set_postfix(val_rmse=f"{val['per_window_vector_rmse']:.3f}", best=f"{run.best['per_window_vector_rmse']:.3f}@{run.best_epoch}")
         if stop:
-            print(f"early stop at epoch {epoch}: no validation improvement for {bad_epochs} epochs", flush=True)
+            print(f"early stop at epoch {epoch}: no validation improvement for {run.bad_epochs} epochs", flush=True)
             break
-        if stop_after_epochs is not None and epoch + 1 - start_epoch >= stop_after_epochs and epoch < cfg.epochs - 1:
+        if stop_after_epochs is not None and epoch + 1 - run.start_epoch >= stop_after_epochs and epoch < cfg.epochs - 1:
             bar.close()
-            return TrainResult(None, history, best_epoch, best, {}, wall, out, exp_name, initial_val)
+            return EstimatorTrainResult(None, run.history, run.best_epoch, run.best, {}, wall, out, exp_name, run.initial_val)
     bar.close()
-    train_wall = wall_before + time.perf_counter() - t_start
-
-    # final: the best checkpoint's test metrics go into its manifest
-    bundle = EstimatorBundle.load(best_path, expect_channels=tuple(wd.channels))
-    t_test = time.perf_counter()
-    test_table = strided_table(wd, "test", cfg.test_stride)
-    test = evaluate_table(bundle.model, wd, test_table, loss_fn, cfg.eval_batch_size) if test_table.shape[0] else {}
-    test_time = time.perf_counter() - t_test
-    manifest = dict(bundle.manifest)
-    manifest.update(
-        epochs_run=len(history),
-        history_tail=history[-3:],
-        test_stride=cfg.test_stride or wd.stride,
-        metrics={
-            **headline(test),
-            "split": "test",
-            "wall_time_s": round(train_wall, 1),
-            "test_eval_time_s": round(test_time, 1),
-            "best_epoch": best_epoch,
-        },
-    )
-    bundle.manifest = manifest
-    bundle.save(out)
-    for k, v in headline(test).items():
-        logger.log_scalar(f"test/{k}", float(v), step=best_epoch)
-    return TrainResult(bundle, history, best_epoch, best, test, train_wall, out, exp_name, initial_val)
+    train_wall = run.wall_before + time.perf_counter() - t_start
+    bundle, test = _finish(ed, cfg, trainer, run, best_path, out, train_wall, logger)
+    return EstimatorTrainResult(bundle, run.history, run.best_epoch, run.best, test, train_wall, out, exp_name, run.initial_val)

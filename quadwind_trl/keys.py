@@ -1,0 +1,37 @@
+"""Tensordict keys the transforms write and the policy observation layout, in one place.
+
+The policy's ``observation`` is a flat vector whose channels are named by
+:data:`OBSERVATION_CHANNELS`; code that needs a channel looks its index up by name
+(:func:`observation_index`), never by a number, so the layout can change in this file only.
+The kinematic block reuses the estimator features' channel definitions.
+"""
+from __future__ import annotations
+
+from .estimator.features import kinematic_channels
+
+#: (north, east) mean-wind estimate, m/s, written by ``WindEstimate``
+WIND_KEY = "wind_hat"
+#: the policy input vector written by ``PolicyObservation``
+OBSERVATION_KEY = "observation"
+#: the true turbulence-free mean wind at the vehicle (ENU), the oracle's source
+MEAN_WIND_KEY = ("truth", "mean_wind")
+
+#: the policy observation, channel by channel (heading frame: forward, left; see transforms.observation)
+OBSERVATION_CHANNELS: tuple[str, ...] = ("alt", "vel_fwd", "vel_left") + kinematic_channels("ref_relative")[3:] + (
+    "wind_fwd", "wind_left",
+    "err_fwd", "err_left", "err_U",
+    "pd_thrust_over_weight",
+    "ff_T", "ff_x", "ff_y", "ff_z",
+)  # fmt: skip
+OBSERVATION_DIM = len(OBSERVATION_CHANNELS)
+
+
+def observation_index(name: str) -> int:
+    """Index of channel ``name`` in the policy observation."""
+    if name not in OBSERVATION_CHANNELS:
+        raise ValueError(f"observation channel {name!r} unknown; channels: {OBSERVATION_CHANNELS}")
+    return OBSERVATION_CHANNELS.index(name)
+
+
+#: the two wind channels of the observation (what ``WindZero`` zeroes)
+WIND_INDICES: tuple[int, int] = (observation_index("wind_fwd"), observation_index("wind_left"))
