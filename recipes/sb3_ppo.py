@@ -21,7 +21,7 @@ import torch
 
 from quadwind_trl.config import TrajectoryConfig
 from quadwind_trl.gym import ENV_IDS  # importing the module registers the env ids
-from quadwind_trl.rl.envs import regime_config
+from quadwind_trl.regimes import regime_config
 
 
 def short_flights(regime: str) -> dict:

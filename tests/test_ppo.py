@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from quadwind_trl.envs.runner import fly
-from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, regime_config, untrained_estimator, vecnorm
+from quadwind_trl.regimes import regime_config
+from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, untrained_estimator, vecnorm
 from quadwind_trl.rl.ppo import (
     Curriculum,
     PPOConfig,

@@ -14,7 +14,8 @@ from pathlib import Path
 import torch
 
 from ..config import SENSING, TrajectoryConfig, with_sensing
-from .envs import DEFAULT_RANGES, RLEnvSpec, default_estimator_path, load_estimator, regime_config
+from ..regimes import regime_config
+from .envs import DEFAULT_RANGES, RLEnvSpec, default_estimator_path, load_estimator
 from .ppo import PPOConfig, PPOTrainer, default_eval_scenarios, vertical_curriculum
 
 DEFAULT_EVAL_EPISODES = {"horizontal": 10, "vertical": 8}

@@ -33,30 +33,15 @@ from ..envs.quad_env import QuadWindEnv, ScenarioSampler
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..modules.wind_estimator import CHECKPOINT_DIR, AttentionGRUEstimator, EstimatorBundle, EstimatorConfig
-from ..regimes import HORIZONTAL_RL, VERTICAL_RL
+from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
 from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, WindZero
 
 T = TypeVar("T")
 Regime = Literal["horizontal", "vertical"]
 WindInput = Literal["estimate", "zero", "truth"]
 WIND_INPUTS = ("estimate", "zero", "truth")
-REWARD_W_Z = {"horizontal": 1.0, "vertical": 0.5}  # paper: beta
-# one policy decision per 10 Hz log tick, when the wind estimate updates (docs/rl.md: why)
-POLICY_HOLD_STEPS = 10
 DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
-
-
-def regime_config(regime: Regime, base: EnvConfig | None = None, hold_control_steps: int = POLICY_HOLD_STEPS) -> EnvConfig:
-    """``base`` (default ``EnvConfig()``) with the regime's reward weight ``w_z`` (paper: 1.0
-    horizontal, 0.5 vertical) and the policy's decision period ``hold_control_steps``."""
-    _check_regime(regime)
-    base = base or EnvConfig()
-    return replace(
-        base,
-        reward=replace(base.reward, w_z=REWARD_W_Z[regime]),
-        residual=replace(base.residual, hold_control_steps=hold_control_steps),
-    )
 
 
 def _check_regime(regime: str) -> None:
@@ -155,7 +140,7 @@ def make_env(
     base = QuadWindEnv(cfg, batch_size=[num_envs], device=device, scenario_sampler=sampler, seed=seed, compile_step=compile_step)
     source = "truth" if wind_input == "truth" else "estimate"
     transforms = [
-        EpisodeControl(desync_steps, seed=seed, align=cfg.timing.log_every_control_steps // cfg.residual.hold_control_steps),
+        EpisodeControl(desync_steps, seed=seed, align=cfg.timing.decisions_per_log),
         WindEstimate(estimator_bundle if source == "estimate" else None, source=source, config=cfg),
         PolicyObservation(cfg),
         RunningObsNorm(in_keys=["observation"], decay=1.0, eps=1e-4, reduce_batch_dims=True),
@@ -274,7 +259,6 @@ __all__ = [
     "EnvFactory",
     "RLEnvSpec",
     "make_env",
-    "regime_config",
     "untrained_estimator",
     "load_estimator",
     "default_estimator_path",

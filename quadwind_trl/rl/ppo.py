@@ -311,7 +311,7 @@ class PPOTrainer:
         ids = torch.tensor([TRAJECTORY_IDS[t] for t in traj])
         start, end = trajectory_library(s.env_config, "cpu").schedule(ids, torch.full((len(traj),), float(alt)))
         steps = end - start if s.start == "pattern" else end
-        return max(1, int(steps.float().mean()) // s.env_config.residual.hold_control_steps)
+        return max(1, int(steps.float().mean()) // s.env_config.timing.hold_control_steps)
 
     def _make_logger(self):
         from torchrl.record import CSVLogger
