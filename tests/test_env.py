@@ -20,6 +20,7 @@ from quadwind_trl.envs import HORIZONTAL, TRAJECTORIES, VERTICAL, QuadWindEnv, m
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.simulator import QuadSimulator
+from quadwind_trl.envs.task import TrackingTask
 from quadwind_trl.envs.vehicle import VehicleParams, rotor_thrust_ratio
 
 from conftest import quiet_config, short_trajectories, windy_config
@@ -255,6 +256,32 @@ def test_held_action_freezes_a_row_that_crashes_inside_the_hold():
     assert float(td["reward"][0]) < EnvConfig().reward.crash_penalty + 1.0
 
 
+def test_a_replaced_task_sets_the_reward_and_the_episode_end():
+    """``QuadWindEnv(task=...)``: the physics is unchanged, the reward and the episode end are the task's."""
+
+    class AltitudeOnly(TrackingTask):
+        def step_reward(self, params, before, after):
+            return -(after["body", "pos"][..., 2:] - after["ref", "pos"][..., 2:]).abs()
+
+        def done(self, params, state):
+            terminated, truncated = super().done(params, state)
+            return terminated, truncated | (state["step"] >= params["pattern_start"] + 3).unsqueeze(-1)
+
+    cfg = EnvConfig(trajectories=short_trajectories())
+    sc = make_scenarios(2, traj_id="hover", altitude_m=20.0, start_step=-1, wind_speed_ref_m_s=6.0, turb_intensity=0.2)
+    default, custom = QuadWindEnv(cfg, batch_size=[2]), QuadWindEnv(cfg, batch_size=[2], task=AltitudeOnly(cfg))
+    a, b = default.reset(scenario=sc), custom.reset(scenario=sc)
+    for k in range(3):  # the episodes start at pattern_start: the task truncates them at the third step
+        a["action"] = b["action"] = torch.zeros(2, 4)
+        a, b = default.step(a)["next"], custom.step(b)["next"]
+        assert torch.equal(a["truth", "pos"], b["truth", "pos"])
+        z_err = (custom.state["body", "pos"][:, 2:] - custom.state["ref", "pos"][:, 2:]).abs()
+        assert torch.equal(b["reward"], -z_err) and not torch.equal(a["reward"], b["reward"])
+        assert bool(b["truncated"].all()) == (k == 2) and not a["truncated"].any()
+    with pytest.raises(TypeError, match="step_reward"):
+        QuadWindEnv(cfg, task=object())
+
+
 def test_partial_reset_touches_only_masked_rows():
     env = QuadWindEnv(batch_size=[4])
     sc = make_scenarios(4, traj_id=[0, 1, 2, 3], altitude_m=20.0, wind_speed_ref_m_s=5.0, turb_intensity=0.1,
@@ -391,6 +418,8 @@ def test_shipped_policies_load_their_config_as_the_legacy_preset(regime):
     assert cfg.sensors == LEGACY_SENSORS and cfg.navigation == LEGACY_NAVIGATION
     assert cfg.turbulence.anisotropy == "local_scaling"  # the field they were trained in
     assert cfg.vehicle.rotor_aero == "static"  # and the rotor thrust they flew
+    # saved when the hold was a residual setting: it loads as the timing setting it now is
+    assert saved["residual"]["hold_control_steps"] == 10 and cfg.timing.hold_control_steps == 10
     assert with_sensor_preset(EnvConfig(), "legacy_walk") == replace(EnvConfig(), sensors=LEGACY_SENSORS,
                                                                        navigation=LEGACY_NAVIGATION)
     tampered = dict(saved, sensors=dict(saved["sensors"], gps_pos=dict(saved["sensors"]["gps_pos"], noise_std=0.1)))

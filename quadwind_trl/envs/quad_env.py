@@ -105,7 +105,11 @@ class QuadWindEnv(EnvBase):
         self.config = (config or EnvConfig()).validate()
         self.sim = QuadSimulator(self.config, self.device)
         self.scenario_sampler = scenario_sampler or ScenarioSampler()
-        self.task = task if task is not None else TrackingTask(self.config.reward, self.sim.arm_step, self.sim.control_dt)
+        if task is not None:
+            missing = [m for m in ("step_reward", "done", "decision_reward") if not callable(getattr(task, m, None))]
+            if missing:
+                raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
+        self.task = task if task is not None else TrackingTask(self.config)
         self._advance = torch.compile(self._control_step, dynamic=False) if compile_step else self._control_step
         self.params: TensorDict | None = None
         self.state: TensorDict | None = None

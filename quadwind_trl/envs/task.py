@@ -4,7 +4,7 @@
 asks its task, after every 10 ms control step, for the shaped reward and whether the episode has
 ended; once per decision (``TimingConfig.hold_control_steps`` control steps) it adds the crash
 penalty. Replace the task to change what is rewarded or what ends an episode:
-``QuadWindEnv(config, task=MyTask(...))`` with any object that has the three methods of
+``QuadWindEnv(config, task=MyTask(config))`` with any object that has the three methods of
 :class:`Task` (subclassing :class:`TrackingTask` is the short way). Tasks read the simulator's
 ``params`` / ``state`` TensorDicts (keys in :mod:`quadwind_trl.envs.simulator`) and must stay
 pure and branch-free (no host synchronisation: they run inside the held step and under
@@ -19,7 +19,7 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-from ..config import RewardConfig
+from ..config import EnvConfig
 from .rotations import quat_to_rotmat
 
 
@@ -45,9 +45,12 @@ class TrackingTask:
     ``crash_penalty`` if the episode terminated.
     """
 
-    def __init__(self, reward: RewardConfig, arm_step: int, control_dt_s: float):
-        self.reward = reward
-        self.grace_steps = arm_step + int(round(reward.takeoff_grace_s / control_dt_s))
+    def __init__(self, config: EnvConfig):
+        self.reward = reward = config.reward
+        dt = config.timing.control_dt_s
+        # ground contact ends an episode from this control step on (the arming step is the
+        # trajectory library's: arm_time_s on the control clock)
+        self.grace_steps = int(round(config.trajectories.arm_time_s / dt)) + int(round(reward.takeoff_grace_s / dt))
         self.cos_crash_tilt = math.cos(math.radians(reward.crash_tilt_deg))
 
     def step_reward(self, params: TensorDict, before: TensorDict, after: TensorDict) -> Tensor:
