@@ -44,14 +44,14 @@ def wind_along_paths(atm: Atmosphere, scenarios: dict[str, torch.Tensor]) -> tup
     start, end = traj.schedule(scenarios["traj_id"], scenarios["altitude_m"])
     length = end // LOG_EVERY + 1
     n, t_len = start.shape[0], int(length.max())
-    state = atm.init_state(scenarios)
+    params, state = atm.init(scenarios)
     total = torch.zeros(n, t_len, 2)
     mean = torch.zeros(n, t_len, 2)
     with torch.no_grad():
         for i in range(t_len):
             step = torch.full_like(start, i * LOG_EVERY)
             pos = traj.reference(scenarios["traj_id"], step, start, scenarios["altitude_m"]).pos
-            m, w, state = atm.sample(state, pos, LOG_EVERY * CONTROL_DT_S)
+            m, w, state = atm.sample(params, state, pos, LOG_EVERY * CONTROL_DT_S)
             total[:, i], mean[:, i] = w[:, :2], m[:, :2]
     return total, mean, length
 

@@ -68,13 +68,13 @@ def hover_record(layout: str, length: float, n: int, steps: int, dt: float, seed
         stability=stability,
         turb_seed=torch.arange(n) + seed * 100_000,
     )
-    st = atm.init_state(dict(sc.items()))
+    params, st = atm.init(sc)
     pos = torch.zeros(n, 3)
     pos[:, 2] = ALTITUDE_M
     out = torch.empty(n, steps, 3)
     with torch.no_grad():
         for k in range(steps):
-            mean, total, st = atm.sample(st, pos, dt)
+            mean, total, st = atm.sample(params, st, pos, dt)
             gust = total - mean
             e = mean[:, :2] / mean[:, :2].norm(dim=-1, keepdim=True)
             out[:, k, 0] = e[:, 0] * gust[:, 0] + e[:, 1] * gust[:, 1]

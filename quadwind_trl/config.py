@@ -148,25 +148,20 @@ class ResidualConfig:
     # N, N m per 10 ms step (20 N/s, 2 N m/s): a full-scale wind correction builds up over about a
     # second, while step-to-step exploration noise cannot kick the airframe (K_R is 10 N m/rad)
     slew_limit_per_step: tuple[float, float, float, float] = (0.2, 0.02, 0.02, 0.02)
-    # control steps one env step (one policy decision) holds its action for. The smoother and the
-    # slew limiter still act at every control step. 1 (default): a decision every 10 ms; the RL
-    # regimes use 10, a decision per 10 Hz log tick (see docs/rl.md: why).
-    hold_control_steps: int = 1
 
     def validate(self) -> None:
         _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
-        if self.hold_control_steps < 1:
-            raise ValueError("ResidualConfig.hold_control_steps must be >= 1")
         if min(self.slew_limit_per_step) <= 0:
             raise ValueError("ResidualConfig.slew_limit_per_step must be positive")
 
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """Eq. (2) of the paper: r = -a e_xy - b |e_z| - g |u_ff| - d |du_ff| + r_alive."""
+    """Eq. (2) of the paper: r = -a e_xy - b |e_z| - g |u_ff| - d |du_ff| + r_alive, and the crash
+    rules (computed by :class:`~quadwind_trl.envs.task.TrackingTask`)."""
 
     w_xy: float = 1.0  # paper (alpha)
-    w_z: float = 1.0  # paper (beta): 1.0 horizontal, 0.5 vertical regime
+    w_z: float = 1.0  # paper (beta); the regimes' values are presets in quadwind_trl.regimes
     w_ff: float = 0.01  # paper (gamma), on the wrench in N and N m
     w_dff: float = 0.02  # paper (delta)
     alive_bonus: float = 0.05  # paper
@@ -177,9 +172,16 @@ class RewardConfig:
 
 @dataclass(frozen=True)
 class TimingConfig:
+    """The clocks: physics, control, decisions (env steps) and the flight record."""
+
     physics_dt_s: float = 0.002  # paper: rigid body at 500 Hz
     control_substeps: int = 5  # paper: PD at 100 Hz
     log_every_control_steps: int = 10  # paper: flight record at 10 Hz
+    # control steps one env step (one decision) holds its action for; the PD, smoother and slew
+    # limiter still act at every control step. 1: the simulator steps at the control rate (the
+    # PD runs, datasets); the RL regimes' preset (quadwind_trl.regimes.RL_PRESETS) is 10, one
+    # decision per 10 Hz log tick (docs/rl.md: why). Must divide log_every_control_steps.
+    hold_control_steps: int = 1
 
     @property
     def control_dt_s(self) -> float:
@@ -188,6 +190,23 @@ class TimingConfig:
     @property
     def log_dt_s(self) -> float:
         return self.control_dt_s * self.log_every_control_steps
+
+    @property
+    def decision_dt_s(self) -> float:
+        """Seconds per env step."""
+        return self.control_dt_s * self.hold_control_steps
+
+    @property
+    def decisions_per_log(self) -> int:
+        """Env steps per 10 Hz log tick."""
+        return self.log_every_control_steps // self.hold_control_steps
+
+    def validate(self) -> None:
+        _check_range("TimingConfig", "hold_control_steps", self.hold_control_steps, 1, self.log_every_control_steps)
+        if self.log_every_control_steps % self.hold_control_steps:
+            # an env step must end on every 10 Hz tick, or the feature history skips samples
+            raise ValueError(f"TimingConfig.hold_control_steps={self.hold_control_steps} must divide "
+                             f"TimingConfig.log_every_control_steps={self.log_every_control_steps}")
 
 
 @dataclass(frozen=True)
@@ -439,11 +458,6 @@ class EnvConfig:
             sub = getattr(self, f.name)
             if hasattr(sub, "validate"):
                 sub.validate()
-        hold, log_every = self.residual.hold_control_steps, self.timing.log_every_control_steps
-        if log_every % hold:
-            # an env step must end on every 10 Hz tick, or the feature history skips samples
-            raise ValueError(f"ResidualConfig.hold_control_steps={hold} must divide "
-                             f"TimingConfig.log_every_control_steps={log_every}")
         return self
 
 
@@ -496,6 +510,11 @@ def config_from_dict(cls, data: dict):
         data = dict(data, rotor_aero="static")  # saved before the inflow-dependent rotor thrust
     if cls is NavigationConfig and "height_reference" not in data:
         data = dict(data, height_reference="baro")  # saved before the GNSS height reference
+    if cls is EnvConfig and "hold_control_steps" in data.get("residual", {}):
+        # saved when the hold was a residual setting (the shipped policies): it is a timing one
+        residual = dict(data["residual"])
+        data = dict(data, residual=residual, timing=dict(data.get("timing", {}),
+                                                          hold_control_steps=residual.pop("hold_control_steps")))
     hints = typing.get_type_hints(cls)
     unknown = set(data) - {f.name for f in fields(cls)}
     if unknown:

@@ -7,16 +7,19 @@ the factorial evaluation sweeps. Everything not stated by the paper is a choice 
 * RL training: horizontal at one fixed altitude, U in [3, 12] m/s, intensity [0.05, 0.25];
   vertical U_mean in [2, 10] m/s, shear alpha in [0.08, 0.15] coupled with U (the mean wind at
   600 m stays within the estimator's 20 m/s envelope), veer +-5 deg / 100 m.
+* RL task presets: the reward's ``w_z`` per regime and the policy's decision period
+  (``regime_config`` applies both to an env config).
 * Evaluation: the paper's factorial sweeps (trajectories x wind levels x intensities x seeds)
   on wind cases drawn with a sampling seed disjoint from every training seed.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from tensordict import TensorDict
 
+from .config import EnvConfig
 from .envs.counter_rng import hash_bits
 from .envs.scenarios import RegimeRanges, cross_with_trajectories, latin_hypercube, regimes_from_unit
 from .envs.trajectories import HORIZONTAL, VERTICAL
@@ -41,6 +44,26 @@ VERTICAL_RL = RegimeRanges(
     veer_deg_per_100m=(-5.0, 5.0),
     altitude_m=None,
 )
+
+# RL task presets (paper, Eq. 2 and Section "Training regimes")
+REWARD_W_Z = {"horizontal": 1.0, "vertical": 0.5}  # paper: beta
+# one policy decision per 10 Hz log tick, when the wind estimate updates (docs/rl.md: why)
+POLICY_HOLD_STEPS = 10
+
+
+def regime_config(regime: str, base: EnvConfig | None = None, hold_control_steps: int = POLICY_HOLD_STEPS) -> EnvConfig:
+    """``base`` (default ``EnvConfig()``) with the regime's reward weight ``w_z`` (paper: 1.0
+    horizontal, 0.5 vertical) and the policy's decision period ``hold_control_steps`` (control
+    steps per env step, ``TimingConfig.hold_control_steps``)."""
+    if regime not in REWARD_W_Z:
+        raise ValueError(f"regime={regime!r}; allowed: {', '.join(repr(r) for r in REWARD_W_Z)}")
+    base = base or EnvConfig()
+    return replace(
+        base,
+        reward=replace(base.reward, w_z=REWARD_W_Z[regime]),
+        timing=replace(base.timing, hold_control_steps=hold_control_steps),
+    )
+
 
 DATASET_SEED = {"horizontal": 1001, "vertical": 2001}
 DATASET_UNSEEN_SEED = {"horizontal": 1002, "vertical": 2002}  # an independent LHS for generalisation

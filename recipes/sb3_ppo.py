@@ -20,7 +20,7 @@ import torch
 
 from quadwind_trl.gym import ENV_IDS  # importing the module registers the env ids
 from quadwind_trl.quick import QuickFlights
-from quadwind_trl.rl.envs import regime_config
+from quadwind_trl.regimes import regime_config
 
 
 QUICK = QuickFlights(pattern_s=10.0, vertical_top_m=15.0, vertical_hold_s=1.0)  # flights of seconds

@@ -17,6 +17,7 @@ import torch
 from scipy.integrate import quad
 from scipy.optimize import curve_fit
 from scipy.signal import welch
+from tensordict import TensorDict
 
 from quadwind_trl.config import TimingConfig, TurbulenceConfig, WindProfileConfig
 from quadwind_trl.envs.atmosphere import Atmosphere, von_karman_energy, von_karman_longitudinal
@@ -43,10 +44,10 @@ def test_profile_constants_are_the_papers():
 def test_mean_wind_power_law_veer_and_direction_by_hand():
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig(enabled=False))
     z = torch.tensor([0.0, 5.0, 10.0, 100.0, 210.0, 600.0])
-    st = atm.init_state(
+    params, _ = atm.init(
         scenario(6, wind_speed_ref_m_s=8.0, shear_alpha=0.2, wind_dir_deg=30.0, veer_deg_per_100m=5.0)
     )
-    mean = atm.mean_wind(st, z)
+    mean = atm.mean_wind(params, z)
     # U(z) = 8 (max(z, 10) / 10)^0.2 ; from(z) = 30 deg + 5 deg per 100 m above z_ref
     speed = [8.0, 8.0, 8.0, 8.0 * 10**0.2, 8.0 * 21**0.2, 8.0 * 60**0.2]
     from_deg = [30.0, 30.0, 30.0, 34.5, 40.0, 59.5]
@@ -65,8 +66,8 @@ def test_direction_is_meteorological_from_clockwise_from_north(from_deg, east, n
     """A northerly (from 0 deg) blows towards the south: ENU (0, -U); an easterly towards the
     west: (-U, 0); a south-westerly (225 deg) towards the north-east."""
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig(enabled=False))
-    st = atm.init_state(scenario(1, wind_speed_ref_m_s=6.0, wind_dir_deg=from_deg, veer_deg_per_100m=0.0))
-    mean = atm.mean_wind(st, torch.tensor([50.0]))
+    params, _ = atm.init(scenario(1, wind_speed_ref_m_s=6.0, wind_dir_deg=from_deg, veer_deg_per_100m=0.0))
+    mean = atm.mean_wind(params, torch.tensor([50.0]))
     u50 = 6.0 * 5.0**0.14
     torch.testing.assert_close(mean, torch.tensor([[east * u50, north * u50, 0.0]]), rtol=1e-6, atol=1e-5)
 
@@ -74,8 +75,8 @@ def test_direction_is_meteorological_from_clockwise_from_north(from_deg, east, n
 def test_veer_turns_clockwise_with_height_and_is_linear():
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig(enabled=False))
     z = torch.linspace(10.0, 600.0, 60)
-    st = atm.init_state(scenario(60, wind_speed_ref_m_s=5.0, wind_dir_deg=350.0, veer_deg_per_100m=7.0))
-    mean = atm.mean_wind(st, z).double()
+    params, _ = atm.init(scenario(60, wind_speed_ref_m_s=5.0, wind_dir_deg=350.0, veer_deg_per_100m=7.0))
+    mean = atm.mean_wind(params, z).double()
     # the "from" direction is atan2(-east, -north), clockwise from north
     from_deg = torch.rad2deg(torch.atan2(-mean[:, 0], -mean[:, 1]))
     unwrapped = torch.from_numpy(np.rad2deg(np.unwrap(np.deg2rad(from_deg.numpy()))))
@@ -84,8 +85,8 @@ def test_veer_turns_clockwise_with_height_and_is_linear():
 
 def test_mean_wind_is_capped_at_20_m_s_keeping_its_direction():
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig(enabled=False))
-    st = atm.init_state(scenario(2, wind_speed_ref_m_s=15.0, shear_alpha=0.25, wind_dir_deg=120.0))
-    mean = atm.mean_wind(st, torch.tensor([400.0, 10.0]))  # 15 * 40^0.25 = 37.7 m/s uncapped
+    params, _ = atm.init(scenario(2, wind_speed_ref_m_s=15.0, shear_alpha=0.25, wind_dir_deg=120.0))
+    mean = atm.mean_wind(params, torch.tensor([400.0, 10.0]))  # 15 * 40^0.25 = 37.7 m/s uncapped
     assert abs(mean[0, :2].norm().item() - 20.0) < 1e-5
     assert abs(mean[1, :2].norm().item() - 15.0) < 1e-5
     torch.testing.assert_close(mean[0, :2] / 20.0, mean[1, :2] / 15.0, rtol=1e-6, atol=1e-6)
@@ -98,16 +99,16 @@ def test_cap_clips_the_mean_or_the_total_and_disabled_turbulence_gives_the_mean(
     cases = scenario(n, wind_speed_ref_m_s=18.0, turb_intensity=0.25, turb_length_scale_m=50.0, turb_seed=torch.arange(n))
     # default: the cap clips the mean profile only; gusts ride on top of it
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig())
-    mean, total, _ = atm.sample(atm.init_state(cases), pos, CONTROL_DT)
+    mean, total, _ = atm.sample(*atm.init(cases), pos, CONTROL_DT)
     assert (mean[:, :2].norm(dim=-1) <= 20.0 + 1e-4).all()
     assert (total[:, :2].norm(dim=-1) > 20.5).any()
     # "total": mean plus gust is capped too
     capped = Atmosphere(WindProfileConfig(cap_applies_to="total"), TurbulenceConfig())
-    _, total_c, _ = capped.sample(capped.init_state(cases), pos, CONTROL_DT)
+    _, total_c, _ = capped.sample(*capped.init(cases), pos, CONTROL_DT)
     horiz = total_c[:, :2].norm(dim=-1)
     assert (horiz <= 20.0 + 1e-4).all() and (horiz > 19.99).any()  # the cap binds for some rows
     calm = Atmosphere(WindProfileConfig(), TurbulenceConfig(enabled=False))
-    mean0, total0, _ = calm.sample(calm.init_state(scenario(n, wind_speed_ref_m_s=18.0)), pos, CONTROL_DT)
+    mean0, total0, _ = calm.sample(*calm.init(scenario(n, wind_speed_ref_m_s=18.0)), pos, CONTROL_DT)
     assert torch.equal(mean0, total0) and torch.equal(mean0, mean)
 
 
@@ -118,11 +119,11 @@ def test_sigma_scales_with_local_mean_speed_altitude_and_stability():
     """sigma_u = I U(z) (z / z_ref)^-0.05; sigma_v, sigma_w by the configured regime ratios."""
     cfg = TurbulenceConfig()
     atm = Atmosphere(WindProfileConfig(), cfg)
-    st = atm.init_state(
+    params, _ = atm.init(
         scenario(3, wind_speed_ref_m_s=7.0, shear_alpha=0.15, turb_intensity=0.2, stability=torch.tensor([0, 1, 2]))
     )
     z = torch.tensor([120.0, 120.0, 5.0])
-    sigma = atm.turbulence_sigma(st, atm.mean_wind(st, z), z)
+    sigma = atm.turbulence_sigma(params, atm.mean_wind(params, z), z)
     su = [0.2 * 7.0 * 12**0.15 * 12**-0.05, 0.2 * 7.0 * 12**0.15 * 12**-0.05, 0.2 * 7.0]
     ratios = [(1.0,) + tuple(r) for r in cfg.stability_ratios]
     expected = torch.tensor([[s * r for r in ratio] for s, ratio in zip(su, ratios)])
@@ -137,7 +138,7 @@ def test_gust_is_the_stretched_mode_sum_built_by_hand():
     cfg = TurbulenceConfig(stability_ratios=((0.5, 0.25), (1.5, 0.1), (0.9, 2.0)))
     atm = Atmosphere(WindProfileConfig(), cfg)
     n = 3
-    st = atm.init_state(
+    params, st = atm.init(
         scenario(n, traj_id=["racetrack_h", "spiral_ascent", "hover"], altitude_m=torch.tensor([300.0, 600.0, 40.0]),
                  wind_speed_ref_m_s=6.0, wind_dir_deg=200.0, veer_deg_per_100m=8.0, shear_alpha=0.1,
                  turb_intensity=0.15, turb_length_scale_m=80.0, stability=torch.tensor([0, 1, 2]),
@@ -145,7 +146,7 @@ def test_gust_is_the_stretched_mode_sum_built_by_hand():
     )  # fmt: skip
     st["air_offset"] = torch.tensor([[40.0, -7.0, 0.0], [0.0, 0.0, 0.0], [-300.0, 11.0, 0.0]])
     pos = torch.tensor([[5.0, 6.0, 310.0], [-20.0, 3.0, 60.0], [0.0, 0.0, 10.0]])
-    mean, total, _ = atm.sample(st, pos, CONTROL_DT)
+    mean, total, _ = atm.sample(params, st, pos, CONTROL_DT)
     anchor = torch.tensor([300.0, 300.0, 40.0], dtype=torch.float64)
     wind_from = torch.deg2rad(200.0 + 8.0 * (anchor - 10.0) / 100.0)
     along = torch.stack((-torch.sin(wind_from), -torch.cos(wind_from), torch.zeros(n, dtype=torch.float64)), -1)
@@ -157,9 +158,9 @@ def test_gust_is_the_stretched_mode_sum_built_by_hand():
     rot = quat_to_rotmat(q / q.norm(dim=-1, keepdim=True))
     x = (pos - st["air_offset"]).double()
     y = rot.transpose(-1, -2) @ ((frame.transpose(-1, -2) @ x.unsqueeze(-1)).squeeze(-1) / ratios).unsqueeze(-1)
-    k = atm.wavenumber.double().unsqueeze(-1) * atm.wave_dir.double() / 80.0  # [M, 3] rad/m
-    theta = (k @ y).squeeze(-1) + st["phase"].double()  # [n, M]
-    v = (torch.cos(theta) * st["amplitude"].double()) @ atm.velocity_dir.double()  # [n, 3]
+    k = atm.wavevector.double() / 80.0  # [M, 3] rad/m
+    theta = (k @ y).squeeze(-1) + params["phase"].double()  # [n, M]
+    v = (torch.cos(theta) * params["amplitude"].double()) @ atm.velocity_dir.double()  # [n, 3]
     gust_unit = (frame @ (ratios * (rot @ v.unsqueeze(-1)).squeeze(-1)).unsqueeze(-1)).squeeze(-1)
     z = pos[:, 2].double()
     sigma_u = 0.15 * 6.0 * (z / 10.0) ** 0.1 * (z / 10.0) ** -0.05
@@ -172,17 +173,17 @@ def test_frozen_field_is_advected_with_the_integrated_mean_wind():
     reaches the same field at the same time."""
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig())
     n = 16
-    st0 = atm.init_state(
+    params, st0 = atm.init(
         scenario(n, wind_speed_ref_m_s=9.0, wind_dir_deg=250.0, turb_intensity=0.2, turb_length_scale_m=60.0,
                  turb_seed=torch.arange(n) + 11)
     )  # fmt: skip
     start = torch.zeros(n, 3)
     start[:, 2] = 10.0
-    mean0 = atm.mean_wind(st0, start[:, 2])
+    mean0 = atm.mean_wind(params, start[:, 2])
 
     st, pos, gusts = st0, start.clone(), []
     for _ in range(200):  # 2 s drifting with the wind (18 m, 0.3 L)
-        mean, total, st = atm.sample(st, pos, CONTROL_DT)
+        mean, total, st = atm.sample(params, st, pos, CONTROL_DT)
         gusts.append(total - mean)
         pos = pos + CONTROL_DT * mean
     gusts = torch.stack(gusts)
@@ -191,7 +192,7 @@ def test_frozen_field_is_advected_with_the_integrated_mean_wind():
     def hover(dt: float, steps: int):
         state = st0
         for _ in range(steps):
-            mean, total, state = atm.sample(state, start, dt)
+            mean, total, state = atm.sample(params, state, start, dt)
         return total - mean, state
 
     # the gust returned by a call is the field at the offset *before* that call's advection:
@@ -202,8 +203,8 @@ def test_frozen_field_is_advected_with_the_integrated_mean_wind():
     torch.testing.assert_close(s2["air_offset"], 599 * CONTROL_DT / 2 * mean0, rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(g2, g1, rtol=1e-3, atol=1e-3)
     # the gust applied over the last step is the field at pos minus the offset before that step
-    frozen = atm.unit_gust(st0, start - 299 * CONTROL_DT * mean0)
-    expected = atm.turbulence_sigma(st0, mean0, start[:, 2])[:, :1] * frozen
+    frozen = atm.unit_gust(params, start - 299 * CONTROL_DT * mean0)
+    expected = atm.turbulence_sigma(params, mean0, start[:, 2])[:, :1] * frozen
     torch.testing.assert_close(g1, expected, rtol=1e-3, atol=1e-3)
     assert g1.std() > 0.1  # it is not trivially zero
 
@@ -220,37 +221,42 @@ def test_full_layout_is_scale_free_in_k_L():
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig())
     n = 64
     seeds = torch.arange(n) + 500
-    a = atm.init_state(scenario(n, turb_length_scale_m=40.0, turb_seed=seeds))
-    b = atm.init_state(scenario(n, turb_length_scale_m=80.0, turb_seed=seeds))
+    a, _ = atm.init(scenario(n, turb_length_scale_m=40.0, turb_seed=seeds))
+    b, _ = atm.init(scenario(n, turb_length_scale_m=80.0, turb_seed=seeds))
     x = torch.randn(n, 3, generator=torch.Generator().manual_seed(1)) * 100.0
     torch.testing.assert_close(atm.unit_gust(b, 2 * x), atm.unit_gust(a, x), rtol=2e-4, atol=2e-4)
 
 
 def test_modes_are_transverse_and_full_layout_has_unit_variance_per_component():
     atm = Atmosphere(WindProfileConfig(), TurbulenceConfig())
-    dot = (atm.wave_dir.double() * atm.velocity_dir.double()).sum(-1)
+    # the wavevector is the evaluation's own (kappa_m d_m): transverse to the mode velocity, and
+    # its length the log-spaced dimensionless wavenumber
+    k = atm.wavevector.double()
+    dot = (k / k.norm(dim=-1, keepdim=True) * atm.velocity_dir.double()).sum(-1)
     assert dot.abs().max() < 1e-6
-    torch.testing.assert_close(atm.wave_dir.norm(dim=-1), torch.ones(300), rtol=0, atol=1e-6)
+    lo, hi = TurbulenceConfig().kappa_range
+    kappa = torch.logspace(math.log10(lo), math.log10(hi), 300, dtype=torch.float64)
+    torch.testing.assert_close(k.norm(dim=-1), kappa, rtol=1e-6, atol=0)
     torch.testing.assert_close(atm.velocity_dir.norm(dim=-1), torch.ones(300), rtol=0, atol=1e-6)
     # sum over modes of a^2 <cos^2> |d|^2 = 3 (all three components), i.e. 1 per component
     assert abs(0.5 * (atm.shared_amplitude.double() ** 2).sum().item() / 3.0 - 1.0) < 1e-5
 
 
-def _float64(atm: Atmosphere, st: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-    """The atmosphere's tensors (skeleton, cube bank) and an episode state cast to float64."""
+def _float64(atm: Atmosphere, parts: tuple[TensorDict, TensorDict]) -> tuple[TensorDict, TensorDict]:
+    """The atmosphere's tensors (skeleton, cube bank) and episodes' params and state cast to float64."""
     for name, value in list(vars(atm).items()):
         if isinstance(value, torch.Tensor) and value.is_floating_point():
             setattr(atm, name, value.double())
-    return {k: v.double() if v.is_floating_point() else v for k, v in st.items()}
+    return tuple(td.apply(lambda v: v.double() if v.is_floating_point() else v) for td in parts)
 
 
-def _applied_wind_jacobian(atm: Atmosphere, st: dict[str, torch.Tensor], x: torch.Tensor, h: float) -> torch.Tensor:
+def _applied_wind_jacobian(atm: Atmosphere, params: TensorDict, st: TensorDict, x: torch.Tensor, h: float) -> torch.Tensor:
     """``[N, 3, 3]`` central-difference Jacobian of the total wind ``Atmosphere.sample`` applies."""
     cols = []
     for j in range(3):
         e = torch.zeros(3, dtype=x.dtype)
         e[j] = h
-        cols.append((atm.sample(st, x + e, CONTROL_DT)[1] - atm.sample(st, x - e, CONTROL_DT)[1]) / (2 * h))
+        cols.append((atm.sample(params, st, x + e, CONTROL_DT)[1] - atm.sample(params, st, x - e, CONTROL_DT)[1]) / (2 * h))
     return torch.stack(cols, -1)
 
 
@@ -283,9 +289,9 @@ def test_applied_anisotropic_wind_is_divergence_free(length):
     cfg = TurbulenceConfig()
     atm = Atmosphere(WindProfileConfig(), cfg)
     n = 96
-    st = _float64(atm, atm.init_state(_stability_cases(n, cfg.intensity_altitude_exponent, length)))
+    params, st = _float64(atm, atm.init(_stability_cases(n, cfg.intensity_altitude_exponent, length)))
     x, st["air_offset"] = _field_points(n)
-    jac = _applied_wind_jacobian(atm, st, x, h=1e-4)  # shortest wavelength 2 pi L / 800 >= 0.47 m
+    jac = _applied_wind_jacobian(atm, params, st, x, h=1e-4)  # shortest wavelength 2 pi L / 800 >= 0.47 m
     div = jac.diagonal(dim1=-2, dim2=-1).sum(-1)
     for regime in (NEUTRAL, STABLE, CONVECTIVE):
         rows = torch.arange(n) % 3 == regime
@@ -302,11 +308,11 @@ def test_only_the_altitude_dependence_of_sigma_leaves_a_divergence():
     atm = Atmosphere(WindProfileConfig(), cfg)
     n = 96
     alpha = 0.14
-    st = _float64(atm, atm.init_state(_stability_cases(n, alpha, 60.0)))
+    params, st = _float64(atm, atm.init(_stability_cases(n, alpha, 60.0)))
     x, st["air_offset"] = _field_points(n)
-    jac = _applied_wind_jacobian(atm, st, x, h=1e-4)
+    jac = _applied_wind_jacobian(atm, params, st, x, h=1e-4)
     div = jac.diagonal(dim1=-2, dim2=-1).sum(-1)
-    mean, total, _ = atm.sample(st, x, CONTROL_DT)
+    mean, total, _ = atm.sample(params, st, x, CONTROL_DT)
     predicted = (alpha - cfg.intensity_altitude_exponent) / x[:, 2] * (total - mean)[:, 2]
     torch.testing.assert_close(div, predicted, rtol=1e-3, atol=5e-6)  # gradient terms are O(1) per s
     for regime in (NEUTRAL, STABLE, CONVECTIVE):
@@ -322,13 +328,13 @@ def test_ensemble_covariance_is_the_regime_tensor_and_rotations_uniform():
     atm = Atmosphere(WindProfileConfig(), cfg)
     n = 4096
     for regime in (NEUTRAL, STABLE, CONVECTIVE):
-        st = atm.init_state(
+        params, _ = atm.init(
             scenario(n, traj_id="hover", altitude_m=10.0, wind_dir_deg=90.0, turb_length_scale_m=50.0,
                      stability=regime, turb_seed=torch.arange(n) * 3 + 1)
         )  # fmt: skip
         gen = torch.Generator().manual_seed(3)
         pts = (torch.rand(8, n, 3, generator=gen) - 0.5) * 5000.0  # 8 points 100 L apart per sub-env
-        g = atm.unit_gust(st, pts).double().reshape(-1, 3)
+        g = atm.unit_gust(params, pts).double().reshape(-1, 3)
         local = torch.stack((-g[:, 0], -g[:, 1], g[:, 2]), -1)  # an easterly blows west; across is south
         cov = local.T @ local / local.shape[0]
         r_v, r_w = cfg.stability_ratios[regime]
@@ -337,8 +343,8 @@ def test_ensemble_covariance_is_the_regime_tensor_and_rotations_uniform():
         off = cov - torch.diag(cov.diagonal())
         assert off.abs().max() < 0.04
     iso = Atmosphere(WindProfileConfig(), TurbulenceConfig(stability_ratios=((1.0, 1.0),) * 3))
-    st = iso.init_state(scenario(n, traj_id="hover", altitude_m=10.0, turb_seed=torch.arange(n) * 3 + 1))
-    r = st["field_out"].double()  # the anchor frame (fixed: from 0 deg at 10 m) times R
+    params, _ = iso.init(scenario(n, traj_id="hover", altitude_m=10.0, turb_seed=torch.arange(n) * 3 + 1))
+    r = params["field_out"].double()  # the anchor frame (fixed: from 0 deg at 10 m) times R
     assert r.mean(0).abs().max() < 4 * (1 / 3 / n) ** 0.5
     torch.testing.assert_close(r @ r.transpose(-1, -2), torch.eye(3, dtype=torch.float64).expand(n, 3, 3), rtol=0, atol=1e-5)
 
@@ -367,7 +373,7 @@ def record_hover():
     n = SPEC_N
     gen = torch.Generator().manual_seed(4)
     u_ref = SPEC_U / (SPEC_Z / 10.0) ** SPEC_ALPHA
-    st = atm.init_state(
+    params, st = atm.init(
         scenario(n, traj_id="hover", altitude_m=SPEC_Z, wind_speed_ref_m_s=u_ref, shear_alpha=SPEC_ALPHA, veer_deg_per_100m=6.0,
                  wind_dir_deg=torch.rand(n, generator=gen) * 360.0, turb_intensity=SPEC_I,
                  turb_length_scale_m=SPEC_L, stability=torch.arange(n) % 3, turb_seed=torch.arange(n) + 1000)
@@ -377,7 +383,7 @@ def record_hover():
     out = torch.empty(n, SPEC_STEPS, 3)
     with torch.no_grad():
         for k in range(SPEC_STEPS):
-            mean, total, st = atm.sample(st, pos, CONTROL_DT)
+            mean, total, st = atm.sample(params, st, pos, CONTROL_DT)
             out[:, k] = to_local(total - mean, mean)
     speed = mean[:, :2].norm(dim=-1)
     torch.testing.assert_close(speed, torch.full((n,), SPEC_U), rtol=1e-5, atol=1e-5)
@@ -487,10 +493,10 @@ def test_paper_grid_episodes_pick_the_nearest_length_scale_and_their_own_cube(gr
     atm = grid_atmosphere
     cfg = atm.turbulence
     lengths = torch.tensor([55.0, 70.0, 80.0, 250.0, 400.0])
-    st = atm.init_state(scenario(5, turb_length_scale_m=lengths, turb_seed=torch.arange(5)))
+    params, _ = atm.init(scenario(5, turb_length_scale_m=lengths, turb_seed=torch.arange(5)))
     nearest = torch.tensor([0, 0, 1, 4, 4])  # 60 | 90 split at sqrt(60 x 90) = 73.5 m (log L)
-    assert torch.equal(st["cube"] // cfg.cube_bank_size, nearest)
-    assert ((st["cube_offset"] >= 0) & (st["cube_offset"] < cfg.cube_size_m)).all()
+    assert torch.equal(params["cube"] // cfg.cube_bank_size, nearest)
+    assert ((params["cube_offset"] >= 0) & (params["cube_offset"] < cfg.cube_size_m)).all()
 
 
 # --- replay: a row's wind does not depend on its batch ----------------------------------------
@@ -512,9 +518,9 @@ def test_a_row_alone_and_in_a_large_batch_gives_bitwise_identical_wind(layout):
         old = torch.get_num_threads()
         torch.set_num_threads(threads)
         try:
-            st, pos, out = atm.init_state(sc), start[index].clone(), []
+            (params, st), pos, out = atm.init(sc), start[index].clone(), []
             for _ in range(40):
-                mean, total, st = atm.sample(st, pos, CONTROL_DT)
+                mean, total, st = atm.sample(params, st, pos, CONTROL_DT)
                 out.append(torch.cat((mean, total, st["air_offset"]), -1))
                 pos = pos + CONTROL_DT * vel[index]
         finally:

@@ -20,6 +20,7 @@ from quadwind_trl.envs import HORIZONTAL, VERTICAL, QuadWindEnv, make_scenarios,
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.simulator import QuadSimulator
+from quadwind_trl.envs.task import TrackingTask
 from quadwind_trl.envs.vehicle import VehicleParams, rotor_thrust_ratio
 
 from conftest import quiet_config, short_trajectories, windy_config
@@ -31,23 +32,23 @@ HALF_RHO = 0.5 * VEH.air_density_kg_m3
 def _hover_sim(cfg: EnvConfig, n: int = 1, **scenario):
     sim = QuadSimulator(cfg)
     sc = make_scenarios(n, traj_id="hover", altitude_m=50.0, start_step=-1, shear_alpha=0.0, **scenario)
-    return sim, sim.reset(None, sc)
+    return (sim, *sim.initial(sc))
 
 
-def _run(sim: QuadSimulator, state, seconds: float, action=None):
-    action = torch.zeros(state["pos"].shape[0], 4) if action is None else action
+def _run(sim: QuadSimulator, params: TensorDict, state: TensorDict, seconds: float, action=None) -> TensorDict:
+    action = torch.zeros(state.batch_size[0], 4) if action is None else action
     for _ in range(round(seconds / sim.control_dt)):
-        state = sim.step(state, action)
+        state = sim.step(params, state, action)
     return state
 
 
 def test_hover_in_still_air():
-    sim, state = _hover_sim(quiet_config())
-    start = state["pos"].clone()
-    state = _run(sim, state, 10.0)
+    sim, params, state = _hover_sim(quiet_config())
+    start = state["body", "pos"].clone()
+    state = _run(sim, params, state, 10.0)
     hover_speed = math.sqrt(VEH.mass_kg * GRAVITY_M_S2 / (4 * VEH.thrust_coeff))
-    assert torch.allclose(state["rotor"], torch.full((1, 4), hover_speed), rtol=5e-3)
-    assert (state["pos"] - start).norm() < 0.01
+    assert torch.allclose(state["body", "rotor"], torch.full((1, 4), hover_speed), rtol=5e-3)
+    assert (state["body", "pos"] - start).norm() < 0.01
 
 
 def _drag_components(airspeed: float, tilt: float) -> tuple[float, float]:
@@ -70,9 +71,9 @@ def test_steady_wind_offset_matches_force_balance(rotor_aero):
     wind = 8.0
     cfg = windy_config()
     cfg = replace(cfg, vehicle=replace(cfg.vehicle, rotor_aero=rotor_aero))
-    sim, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)  # from the west
-    ref = state["ref_pos"].clone()
-    state = _run(sim, state, 25.0)
+    sim, params, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)  # from the west
+    ref = state["ref", "pos"].clone()
+    state = _run(sim, params, state, 25.0)
     weight = VEH.mass_kg * GRAVITY_M_S2
     tilt = 0.0
     for _ in range(100):
@@ -88,8 +89,8 @@ def test_steady_wind_offset_matches_force_balance(rotor_aero):
             ratio = rotor_thrust_ratio(air_body, torch.full((1, 4), speed), aero)[0, 0].item()
         assert ratio > 1.05  # translational lift outweighs the axial inflow at this tilt
     kp = sim.cfg.controller.kp_pos
-    offset = state["pos"] - ref
-    rot = quat_to_rotmat(state["quat"])
+    offset = state["body", "pos"] - ref
+    rot = quat_to_rotmat(state["body", "quat"])
     sim_tilt = math.acos(rot[0, 2, 2].item())
     expected_x = along / (ratio * VEH.mass_kg * kp[0])
     expected_z = (GRAVITY_M_S2 - (weight - up) / (ratio * VEH.mass_kg)) / kp[2]
@@ -108,18 +109,18 @@ def test_tilt_limit_saturates_and_the_vehicle_is_blown_away():
     wind = 40.0
     cfg = windy_config(cap_m_s=60.0)
     cfg = replace(cfg, vehicle=replace(cfg.vehicle, rotor_aero="static"))
-    sim, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)
-    state = _run(sim, state, 30.0)
+    sim, params, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)
+    state = _run(sim, params, state, 30.0)
     max_tilt = math.radians(35.0)
     weight = VEH.mass_kg * GRAVITY_M_S2
     # (m g - D_z(v)) tan(35) = D_x(v), both quadratic in v: solve for v^2
     along1, up1 = _drag_components(1.0, max_tilt)
     critical = math.sqrt(weight * math.tan(max_tilt) / (along1 + up1 * math.tan(max_tilt)))
-    assert state["tilt_saturated"].all()
-    assert abs(state["tilt_cmd"].item() - max_tilt) < 1e-5
-    drift = state["vel"][0, 0].item()
+    assert state["control", "tilt_saturated"].all()
+    assert abs(state["control", "tilt_cmd"].item() - max_tilt) < 1e-5
+    drift = state["body", "vel"][0, 0].item()
     assert abs(drift - (wind - critical)) < 0.02 * (wind - critical), (drift, wind - critical)
-    assert state["pos"][0, 0].item() - state["ref_pos"][0, 0].item() > 50.0  # long gone
+    assert state["body", "pos"][0, 0].item() - state["ref", "pos"][0, 0].item() > 50.0  # long gone
 
 
 def test_zero_residual_policy_reproduces_pd_bit_for_bit():
@@ -186,12 +187,12 @@ def test_replay_under_another_controller_sees_the_same_world():
     gen = torch.Generator().manual_seed(0)
     b = _stepped(env_b, spec, 300, action_fn=lambda k: torch.rand(1, 4, generator=gen) * 2 - 1)
     assert not torch.allclose(a["truth", "pos"][:, -1], b["truth", "pos"][:, -1])
-    sa, sb = env_a.state, env_b.state
-    for key in ("wind.phase", "wind.field_in", "wind.field_out", "wind.amplitude", "wind.k_scale", "sensor.bias"):
-        assert torch.equal(sa[key], sb[key]), key
+    # the episode's constants are the same, and so is the sensor bias sequence
+    assert (env_a.params == env_b.params).all()
+    assert torch.equal(env_a.state["sensors", "bias"], env_b.state["sensors", "bias"])
     probe = torch.tensor([[10.0, -20.0, 30.0]])
-    wa = env_a.sim.atmosphere.unit_gust({k[5:]: v for k, v in sa.items() if k.startswith("wind.")}, probe)
-    wb = env_b.sim.atmosphere.unit_gust({k[5:]: v for k, v in sb.items() if k.startswith("wind.")}, probe)
+    wa = env_a.sim.atmosphere.unit_gust(env_a.params["wind"], probe)
+    wb = env_b.sim.atmosphere.unit_gust(env_b.params["wind"], probe)
     assert torch.equal(wa, wb)
 
 
@@ -199,7 +200,7 @@ def test_held_action_is_the_same_flight_sampled_every_hold_steps():
     """One env step with ``hold_control_steps=10`` is ten 10 ms control steps under one action:
     the same physics as ten single steps, its reward their mean (the crash penalty once)."""
     cfg = EnvConfig(trajectories=short_trajectories())
-    held_cfg = replace(cfg, residual=replace(cfg.residual, hold_control_steps=10))
+    held_cfg = replace(cfg, timing=replace(cfg.timing, hold_control_steps=10))
     spec = make_scenarios(
         2, traj_id=["figure8_h", "racetrack_h"], altitude_m=30.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
         turb_seed=torch.tensor([3, 4]), sensor_seed=torch.tensor([5, 6]),
@@ -232,7 +233,7 @@ def test_held_action_freezes_a_row_that_crashes_inside_the_hold():
     cfg = EnvConfig(trajectories=short_trajectories(), reward=RewardConfig(crash_tilt_deg=10.0),
                     controller=ControllerConfig(feedback="truth"),
                     residual=ResidualConfig(smoothing=0.0, slew_limit_per_step=(10.0, 10.0, 10.0, 10.0)))
-    held_cfg = replace(cfg, residual=replace(cfg.residual, hold_control_steps=10))
+    held_cfg = replace(cfg, timing=replace(cfg.timing, hold_control_steps=10))
     spec = make_scenarios(2, traj_id="hover", altitude_m=20.0, start_step=-1, wind_speed_ref_m_s=0.0, turb_intensity=0.0,
                           turb_seed=torch.tensor([1, 2]), sensor_seed=torch.tensor([3, 4]))
     # full roll torque on row 0 tips it past the crash tilt; row 1 flies PD
@@ -255,6 +256,32 @@ def test_held_action_freezes_a_row_that_crashes_inside_the_hold():
     assert float(td["reward"][0]) < EnvConfig().reward.crash_penalty + 1.0
 
 
+def test_a_replaced_task_sets_the_reward_and_the_episode_end():
+    """``QuadWindEnv(task=...)``: the physics is unchanged, the reward and the episode end are the task's."""
+
+    class AltitudeOnly(TrackingTask):
+        def step_reward(self, params, before, after):
+            return -(after["body", "pos"][..., 2:] - after["ref", "pos"][..., 2:]).abs()
+
+        def done(self, params, state):
+            terminated, truncated = super().done(params, state)
+            return terminated, truncated | (state["step"] >= params["pattern_start"] + 3).unsqueeze(-1)
+
+    cfg = EnvConfig(trajectories=short_trajectories())
+    sc = make_scenarios(2, traj_id="hover", altitude_m=20.0, start_step=-1, wind_speed_ref_m_s=6.0, turb_intensity=0.2)
+    default, custom = QuadWindEnv(cfg, batch_size=[2]), QuadWindEnv(cfg, batch_size=[2], task=AltitudeOnly(cfg))
+    a, b = default.reset(scenario=sc), custom.reset(scenario=sc)
+    for k in range(3):  # the episodes start at pattern_start: the task truncates them at the third step
+        a["action"] = b["action"] = torch.zeros(2, 4)
+        a, b = default.step(a)["next"], custom.step(b)["next"]
+        assert torch.equal(a["truth", "pos"], b["truth", "pos"])
+        z_err = (custom.state["body", "pos"][:, 2:] - custom.state["ref", "pos"][:, 2:]).abs()
+        assert torch.equal(b["reward"], -z_err) and not torch.equal(a["reward"], b["reward"])
+        assert bool(b["truncated"].all()) == (k == 2) and not a["truncated"].any()
+    with pytest.raises(TypeError, match="step_reward"):
+        QuadWindEnv(cfg, task=object())
+
+
 def test_partial_reset_touches_only_masked_rows():
     env = QuadWindEnv(batch_size=[4])
     sc = make_scenarios(4, traj_id=[0, 1, 2, 3], altitude_m=20.0, wind_speed_ref_m_s=5.0, turb_intensity=0.1,
@@ -263,15 +290,17 @@ def test_partial_reset_touches_only_masked_rows():
     for _ in range(50):
         td["action"] = torch.rand(4, 4) * 2 - 1
         td = env.step(td)["next"]
-    before = {k: v.clone() for k, v in env.state.items()}
+    before = {"params": env.params.clone(), "state": env.state.clone()}
     fresh = make_scenarios(4, traj_id=[5, 6, 7, 8], turb_seed=torch.arange(4) + 10, sensor_seed=torch.arange(4) + 20)
     mask = torch.tensor([[True], [False], [False], [True]])
     out = env.reset(TensorDict(_reset=mask, batch_size=[4]), scenario=fresh)
     reference = QuadWindEnv(batch_size=[4])
     reference.reset(scenario=fresh)
-    for key, value in env.state.items():
-        assert torch.equal(value[1:3], before[key][1:3]), key
-        assert torch.equal(value[[0, 3]], reference.state[key][[0, 3]]), key
+    for part in ("params", "state"):  # every entry, params and dynamic state alike
+        now, ref = getattr(env, part), getattr(reference, part)
+        for key in now.keys(include_nested=True, leaves_only=True):
+            assert torch.equal(now[key][1:3], before[part][key][1:3]), (part, key)
+            assert torch.equal(now[key][[0, 3]], ref[key][[0, 3]]), (part, key)
     assert torch.equal(out["step"][[0, 3]], torch.zeros(2, 1, dtype=torch.int64))
 
 
@@ -390,6 +419,8 @@ def test_shipped_policies_load_their_config_as_the_legacy_preset(regime):
     assert cfg.sensors == LEGACY_SENSORS and cfg.navigation == LEGACY_NAVIGATION
     assert cfg.turbulence.anisotropy == "local_scaling"  # the field they were trained in
     assert cfg.vehicle.rotor_aero == "static"  # and the rotor thrust they flew
+    # saved when the hold was a residual setting: it loads as the timing setting it now is
+    assert saved["residual"]["hold_control_steps"] == 10 and cfg.timing.hold_control_steps == 10
     assert with_sensor_preset(EnvConfig(), "legacy_walk") == replace(EnvConfig(), sensors=LEGACY_SENSORS,
                                                                        navigation=LEGACY_NAVIGATION)
     tampered = dict(saved, sensors=dict(saved["sensors"], gps_pos=dict(saved["sensors"]["gps_pos"], noise_std=0.1)))
@@ -401,8 +432,9 @@ def test_every_sensor_preset_builds_and_flies():
     sc = make_scenarios(2, traj_id="hover", altitude_m=50.0, start_step=-1)
     for name in SENSOR_PRESETS:
         sim = QuadSimulator(with_sensor_preset(EnvConfig(), name))
-        state = _run(sim, sim.reset(None, sc), 0.5)
-        assert torch.isfinite(state["pos"]).all() and (state["pos"][:, 2] - 50.0).abs().max() < 1.0, name
+        state = _run(sim, *sim.initial(sc), 0.5)
+        pos = state["body", "pos"]
+        assert torch.isfinite(pos).all() and (pos[:, 2] - 50.0).abs().max() < 1.0, name
 
 
 def test_compiled_step_matches_eager():

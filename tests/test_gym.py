@@ -17,7 +17,7 @@ from gymnasium.utils.env_checker import check_env
 
 import quadwind_trl.gym as qgym
 from quadwind_trl.config import TrajectoryConfig
-from quadwind_trl.rl.envs import regime_config
+from quadwind_trl.regimes import regime_config
 
 ROOT = Path(__file__).resolve().parent.parent
 

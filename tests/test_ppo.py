@@ -14,7 +14,8 @@ import torch
 
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.estimator import untrained_estimator
-from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, regime_config, vecnorm
+from quadwind_trl.regimes import regime_config
+from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, vecnorm
 from quadwind_trl.rl.config import Curriculum, PPOConfig, vertical_curriculum
 from quadwind_trl.rl.paired import default_eval_scenarios
 from quadwind_trl.rl.policy import build_actor_critic, load_policy

@@ -85,8 +85,8 @@ def test_regime_ranges_are_the_papers_where_it_gives_them():
 def profile_speed(cases, altitude: torch.Tensor) -> torch.Tensor:
     """The uncapped power-law mean wind at ``altitude``, through Atmosphere.mean_wind."""
     atm = Atmosphere(WindProfileConfig(max_horizontal_wind_m_s=1e9), TurbulenceConfig(enabled=False))
-    st = atm.init_state({k: cases[k] for k in SCENARIO_FIELDS})
-    return atm.mean_wind(st, altitude.float())[:, :2].norm(dim=-1).double()
+    params, _ = atm.init({k: cases[k] for k in SCENARIO_FIELDS})
+    return atm.mean_wind(params, altitude.float())[:, :2].norm(dim=-1).double()
 
 
 def test_vertical_design_bounds_the_mean_wind_at_the_top_altitude():

@@ -77,7 +77,7 @@ def test_rates_that_do_not_divide_the_control_rate_are_refused():
 def test_disabled_sensors_return_the_truth():
     suite = SensorSuite(replace(CFG, enabled=False), DT)
     truth = torch.randn(5, NUM_SENSOR_CHANNELS)
-    meas, _ = suite.measure(suite.init_state(torch.arange(5)), truth, torch.zeros(5, dtype=torch.int64))
+    meas, _ = suite.measure(*suite.init(torch.arange(5)), truth, torch.zeros(5, dtype=torch.int64))
     assert torch.equal(meas, truth)
 
 
@@ -88,12 +88,12 @@ def test_white_noise_std_per_channel_with_bias_disabled():
     })  # fmt: skip
     suite = SensorSuite(cfg, DT)
     n = 1024
-    st = suite.init_state(torch.arange(n) + 10_000)
+    params, st = suite.init(torch.arange(n) + 10_000)
     gen = torch.Generator().manual_seed(0)
     sq, count = torch.zeros(NUM_SENSOR_CHANNELS, dtype=torch.float64), torch.zeros(NUM_SENSOR_CHANNELS)
     for k in range(100):
         truth = random_truth(n, gen)
-        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
+        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
         err = meas - truth
         err[:, YAW] = wrap(err[:, YAW])
         tick = (k % PERIOD) == 0
@@ -105,13 +105,13 @@ def test_white_noise_std_per_channel_with_bias_disabled():
 
 def _long_run(cfg: SensorConfig, n: int, steps: int = 800):
     suite = SensorSuite(cfg, DT)
-    st = suite.init_state(torch.arange(n) * 3 + 5)
+    params, st = suite.init(torch.arange(n) * 3 + 5)
     gen = torch.Generator().manual_seed(1)
     noise, increments, bias_at = [], [], {}
     for k in range(steps):
         truth = random_truth(n, gen)
         before = st["bias"]
-        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
+        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
         if k < 200:
             err = meas - truth - st["bias"]
             err[:, YAW] = wrap(err[:, YAW])
@@ -185,12 +185,12 @@ def test_gauss_markov_bias_has_its_stationary_std_and_correlation_time():
     suite = SensorSuite(cfg, DT)
     sigma = suite.bias_std.double()
     n, lag, steps = 4096, 100, 600
-    st = suite.init_state(torch.arange(n) * 11 + 1)
+    params, st = suite.init(torch.arange(n) * 11 + 1)
     truth, imu_sub = torch.zeros(n, NUM_SENSOR_CHANNELS), torch.zeros(n, 1, 6)  # the IMU's 5 ms sample too
     biases = []
     for k in range(steps):
         first = torch.ones(n, 1, dtype=torch.bool) if k == 0 else None
-        _, st = suite.measure(st, truth, torch.full((n,), k), force=first, imu_truth_sub=None if k == 0 else imu_sub)
+        _, st = suite.measure(params, st, truth, torch.full((n,), k), force=first, imu_truth_sub=None if k == 0 else imu_sub)
         biases.append(st["bias"].double())
     b = torch.stack(biases, 1) / sigma  # [n, steps, 16], unit variance if stationary
     for t in (0, steps // 2, steps - 1):
@@ -203,7 +203,7 @@ def test_gauss_markov_bias_has_its_stationary_std_and_correlation_time():
 
 def test_the_default_biases_start_from_their_stationary_distribution():
     suite = SensorSuite(CFG, DT)
-    bias = suite.init_state(torch.arange(20_000) + 77)["bias"].double()
+    bias = suite.init(torch.arange(20_000) + 77)[1]["bias"].double()
     ratio = bias.pow(2).mean(0).sqrt() / suite.bias_std.double()
     assert ((ratio - 1).abs() < 0.05).all(), ratio
     assert (bias.mean(0).abs() < 0.05 * suite.bias_std.double()).all()
@@ -217,13 +217,13 @@ def test_the_imu_delivers_a_new_sample_every_5_ms():
     assert suite.imu_substeps(TimingConfig().control_substeps) == (2,)  # the 4 ms state for the 5 ms sample
     assert SensorSuite(LEGACY_SENSORS, DT).imu_substeps(5) == ()
     n = 4096
-    st = suite.init_state(torch.arange(n))
+    params, st = suite.init(torch.arange(n))
     gen = torch.Generator().manual_seed(4)
     mid_err, end_err = [], []
     for k in range(40):
         truth, mid_truth = random_truth(n, gen), random_truth(n, gen)[:, 10:16]
         sub = None if k == 0 else mid_truth.unsqueeze(-2)
-        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None,
+        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None,
                                  imu_truth_sub=sub)
         if k:
             mid = 2 * st["imu_mean"] - meas[:, 10:16]  # the 5 ms sample
@@ -239,12 +239,12 @@ def test_the_imu_delivers_a_new_sample_every_5_ms():
 def test_values_change_only_at_each_sensors_rate_and_hold_in_between():
     suite = SensorSuite(CFG, DT)
     n, first = 8, 37  # an episode starting off the sampling grid: sampled at once, then on the grid
-    st = suite.init_state(torch.arange(n))
+    params, st = suite.init(torch.arange(n))
     gen = torch.Generator().manual_seed(2)
     prev, sampled_truth = None, None
     for k in range(first, first + 60):
         truth = random_truth(n, gen)
-        meas, st = suite.measure(st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == first else None)
+        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == first else None)
         tick = ((k % PERIOD) == 0) | (k == first)
         if prev is not None:
             changed = (meas != prev).all(0)
@@ -270,10 +270,10 @@ def test_one_seed_replays_identically_alone_or_in_a_batch():
         old = torch.get_num_threads()
         torch.set_num_threads(threads)
         try:
-            st, out = suite.init_state(seeds[index]), []
+            (params, st), out = suite.init(seeds[index]), []
             for k, truth in enumerate(truths):
                 force = torch.ones(len(index), 1, dtype=torch.bool) if k == 0 else None
-                meas, st = suite.measure(st, truth[index], torch.full((len(index),), k), force=force)
+                meas, st = suite.measure(params, st, truth[index], torch.full((len(index),), k), force=force)
                 out.append(torch.cat((meas, st["bias"]), -1))
         finally:
             torch.set_num_threads(old)

@@ -8,7 +8,7 @@ Frames and conventions, fixed once for the whole project:
 * **Attitude**: unit quaternion ``(w, x, y, z)`` rotating body to world; Euler angles are Z-Y-X
   (roll, pitch, yaw), yaw measured from east, counter-clockwise.
 * **Wind direction**: meteorological, the direction the wind blows *from*, clockwise from north.
-* **Time**: physics at 500 Hz, control at 100 Hz (one env step, or `hold_control_steps` of them), flight record at 10 Hz; the
+* **Time**: physics at 500 Hz, control at 100 Hz (one env step, or `TimingConfig.hold_control_steps` of them), flight record at 10 Hz; the
   integer control-step counter is the clock (``t = step * 0.01 s``).
 """
 from .quad_env import QuadWindEnv, ScenarioSampler

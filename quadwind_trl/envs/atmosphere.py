@@ -51,6 +51,7 @@ from __future__ import annotations
 import math
 
 import torch
+from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import TurbulenceConfig, WindProfileConfig
@@ -124,7 +125,12 @@ def synthesise_cube(cfg: TurbulenceConfig, length_scale: float, realisation: int
 
 
 class Atmosphere:
-    """Mean profile plus turbulence for a batch of episodes (pure methods over state dicts)."""
+    """Mean profile plus turbulence for a batch of episodes.
+
+    Pure methods over two TensorDicts: the per-episode ``params`` (the profile, the regime's
+    ratios, the field's maps, its mode phases and amplitudes or its cube: written once at reset)
+    and the dynamic ``state`` (the advected air offset ``air_offset``).
+    """
 
     def __init__(self, wind: WindProfileConfig, turbulence: TurbulenceConfig, device: torch.device | str | None = None):
         turbulence.validate()
@@ -147,10 +153,9 @@ class Atmosphere:
         amp = 2.0 * energy.sqrt()
         amp = amp * math.sqrt(3.0 / (0.5 * (amp**2).sum()))  # unit variance per component
         self.shared_amplitude = amp.to(torch.float32).to(self.device)
-        self.wavenumber = kappa.to(torch.float32).to(self.device)  # kappa = k L
-        self.wave_dir = direction.to(torch.float32).to(self.device)  # [M, 3]
-        self.velocity_dir = velocity_dir.to(torch.float32).to(self.device)  # [M, 3]
-        self._wavevector = (kappa.unsqueeze(-1) * direction).to(torch.float32).to(self.device)  # [M, 3], / L per episode
+        # dimensionless wavevectors kappa_m d_m (rad per length scale L: divided by L per episode)
+        self.wavevector = (kappa.unsqueeze(-1) * direction).to(torch.float32).to(self.device)  # [M, 3]
+        self.velocity_dir = velocity_dir.to(torch.float32).to(self.device)  # [M, 3], perpendicular to wavevector
         self._velocity_dir_t = self.velocity_dir.T.contiguous()  # [3, M]
         self.cube_bank: Tensor | None = None
         if turbulence.layout == "paper_grid":
@@ -166,8 +171,9 @@ class Atmosphere:
 
     # --- per-episode parameters ---------------------------------------------------------------
 
-    def init_state(self, scenario: dict[str, Tensor]) -> dict[str, Tensor]:
-        """Per-episode wind parameters and the advection state, from scenario fields ``[N]``."""
+    def init(self, scenario: TensorDict | dict[str, Tensor]) -> tuple[TensorDict, TensorDict]:
+        """``(params, state)`` of a batch of episodes from their scenario fields ``[N]``: the
+        per-episode wind parameters, and the advection state (the air offset, zero at the start)."""
         seed = scenario["turb_seed"]
         n = seed.shape[0]
         q = hash_normal(seed, 0, _STREAM_ROTATION, 4)
@@ -197,7 +203,7 @@ class Atmosphere:
         else:  # "local_scaling": the isotropic field, rotated into the reference-height wind frame
             field_out = _matmul3(_rot_z(-torch.sin(base_from), -torch.cos(base_from)), rotation)
             field_in = field_out.transpose(-1, -2)
-        state = {
+        params = {
             "wind_speed_ref": scenario["wind_speed_ref_m_s"].to(torch.float32),
             "wind_from0": base_from,
             "shear_alpha": scenario["shear_alpha"].to(torch.float32),
@@ -206,13 +212,12 @@ class Atmosphere:
             "ratios": ratios,
             "field_in": field_in,
             "field_out": field_out,
-            "air_offset": torch.zeros(n, 3, device=seed.device),
         }
         length = scenario["turb_length_scale_m"].to(torch.float32)
         if self.cube_bank is None:
-            state["phase"] = 2 * math.pi * hash_uniform(seed, 0, _STREAM_PHASE, self.turbulence.num_modes)
-            state["amplitude"] = self.shared_amplitude.expand(n, -1).contiguous()
-            state["k_scale"] = (1.0 / length).unsqueeze(-1)
+            params["phase"] = 2 * math.pi * hash_uniform(seed, 0, _STREAM_PHASE, self.turbulence.num_modes)
+            params["amplitude"] = self.shared_amplitude.expand(n, -1).contiguous()
+            params["k_scale"] = (1.0 / length).unsqueeze(-1)
         else:
             # the nearest length scale of the bank (in log L), one of its realisations by seed,
             # and a uniform offset into the periodic cube: episodes sharing a cube still fly
@@ -220,52 +225,53 @@ class Atmosphere:
             nearest = (length.log().unsqueeze(-1) - self._cube_log_lengths).abs().argmin(-1)
             bank = self.turbulence.cube_bank_size
             pick = hash_bits(seed, 0, _STREAM_CUBE, 1)[..., 0] % bank
-            state["cube"] = nearest * bank + pick
-            state["cube_offset"] = self.turbulence.cube_size_m * hash_uniform(seed, 0, _STREAM_CUBE_OFFSET, 3)
-        return state
+            params["cube"] = nearest * bank + pick
+            params["cube_offset"] = self.turbulence.cube_size_m * hash_uniform(seed, 0, _STREAM_CUBE_OFFSET, 3)
+        state = TensorDict(air_offset=torch.zeros(n, 3, device=seed.device), batch_size=[n])
+        return TensorDict(params, batch_size=[n]), state
 
     # --- evaluation ---------------------------------------------------------------------------
 
-    def _profile(self, state: dict[str, Tensor], z: Tensor) -> tuple[Tensor, Tensor]:
+    def _profile(self, params: TensorDict, z: Tensor) -> tuple[Tensor, Tensor]:
         """Capped mean speed and the "from" direction (rad) at altitudes ``z``."""
         z_ref = self.wind.reference_height_m
         zc = z.clamp_min(z_ref)
         # (zc / z_ref) ** alpha written as exp(alpha log(.)): torch's CPU pow (and atan2) round
         # differently in the vectorised body and the scalar tail of a kernel, which made a row's
         # wind depend on the batch size; exp and log do not (tests/test_atmosphere.py)
-        speed = state["wind_speed_ref"] * torch.exp(state["shear_alpha"] * torch.log(zc / z_ref))
+        speed = params["wind_speed_ref"] * torch.exp(params["shear_alpha"] * torch.log(zc / z_ref))
         speed = speed.clamp_max(self.wind.max_horizontal_wind_m_s)
-        wind_from = state["wind_from0"] + state["veer_rad_per_m"] * (zc - z_ref)
+        wind_from = params["wind_from0"] + params["veer_rad_per_m"] * (zc - z_ref)
         return speed, wind_from
 
-    def mean_wind(self, state: dict[str, Tensor], z: Tensor) -> Tensor:
+    def mean_wind(self, params: TensorDict, z: Tensor) -> Tensor:
         """``[N, 3]`` turbulence-free mean wind (ENU) at altitudes ``z`` ``[N]``."""
-        speed, wind_from = self._profile(state, z)
+        speed, wind_from = self._profile(params, z)
         return torch.stack((-speed * torch.sin(wind_from), -speed * torch.cos(wind_from), torch.zeros_like(speed)), -1)
 
-    def unit_gust(self, state: dict[str, Tensor], field_pos: Tensor) -> Tensor:
+    def unit_gust(self, params: TensorDict, field_pos: Tensor) -> Tensor:
         """The episode's anisotropic gust (ENU) per unit sigma_u, at positions in the frozen field's frame.
 
         ``F D R v(R^T D^-1 F^T x)``: ``v`` the unit-variance mode sum in the skeleton frame, ``R``
         the episode's rotation, ``D = diag(1, sigma_v / sigma_u, sigma_w / sigma_u)`` its
-        regime's ratios in the anchor frame ``F`` (``init_state``). ``field_pos`` is ``[N, 3]``
+        regime's ratios in the anchor frame ``F`` (``init``). ``field_pos`` is ``[N, 3]``
         (or ``[..., N, 3]``: several points per episode). Written with elementwise operations in
         a fixed order and one sum over each row's contiguous modes, never a matmul: BLAS picks
         kernels (and summation orders) by the batch size, which made a row's wind depend on how
         many rows shared its batch (tests/test_atmosphere.py).
         """
-        m_in, m_out = state["field_in"], state["field_out"]
+        m_in, m_out = params["field_in"], params["field_out"]
         x, y, z = field_pos[..., 0], field_pos[..., 1], field_pos[..., 2]
         if self.cube_bank is not None:
-            local = [x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2] + state["cube_offset"][..., c] for c in range(3)]
-            bx, by, bz = self._interpolate_cube(state["cube"], local).unbind(-1)
+            local = [x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2] + params["cube_offset"][..., c] for c in range(3)]
+            bx, by, bz = self._interpolate_cube(params["cube"], local).unbind(-1)
             return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
-        k_scale = state["k_scale"]
-        theta = state["phase"]
+        k_scale = params["k_scale"]
+        theta = params["phase"]
         for c in range(3):  # theta = phase + sum_c (M_in x)_c k_scale kappa_m d_mc
             local = x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2]
-            theta = theta + (local.unsqueeze(-1) * k_scale) * self._wavevector[:, c]
-        modes = torch.cos(theta) * state["amplitude"]
+            theta = theta + (local.unsqueeze(-1) * k_scale) * self.wavevector[:, c]
+        modes = torch.cos(theta) * params["amplitude"]
         bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1) for c in range(3))  # skeleton frame
         return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
 
@@ -298,47 +304,45 @@ class Atmosphere:
                     out = out + w.unsqueeze(-1) * flat[row]
         return out
 
-    def turbulence_sigma(self, state: dict[str, Tensor], mean: Tensor, z: Tensor) -> Tensor:
+    def turbulence_sigma(self, params: TensorDict, mean: Tensor, z: Tensor) -> Tensor:
         """``[N, 3]`` requested standard deviations at altitude ``z``, in the episode's anchor frame.
 
-        (along, across, up) of the mean wind at the anchor altitude (``init_state``); the gust
+        (along, across, up) of the mean wind at the anchor altitude (``init``); the gust
         is ``sigma_u`` times ``unit_gust``, whose ensemble variances are ``(1, r_v^2, r_w^2)``.
         """
         z_ref = self.wind.reference_height_m
         speed = torch.sqrt(mean[..., 0] * mean[..., 0] + mean[..., 1] * mean[..., 1])
         decay = torch.exp(-self.turbulence.intensity_altitude_exponent * torch.log(z.clamp_min(z_ref) / z_ref))
-        return (state["intensity"] * speed * decay).unsqueeze(-1) * state["ratios"]
+        return (params["intensity"] * speed * decay).unsqueeze(-1) * params["ratios"]
 
-    def sample(
-        self, state: dict[str, Tensor], pos: Tensor, dt: float
-    ) -> tuple[Tensor, Tensor, dict[str, Tensor]]:
+    def sample(self, params: TensorDict, state: TensorDict, pos: Tensor, dt: float) -> tuple[Tensor, Tensor, TensorDict]:
         """Mean and total wind ``[N, 3]`` at ``pos``; the state advected by ``dt`` seconds.
 
         The returned wind applies over the coming ``dt`` (the simulator holds it over the
         control step's physics substeps).
         """
         z = pos[..., 2]
-        mean = self.mean_wind(state, z)
+        mean = self.mean_wind(params, z)
         total = mean
+        field_pos = pos - state["air_offset"]
         if self.turbulence.enabled and self.turbulence.anisotropy == "stretch":
-            sigma_u = self.turbulence_sigma(state, mean, z)[..., :1]
-            total = mean + sigma_u * self.unit_gust(state, pos - state["air_offset"])
+            sigma_u = self.turbulence_sigma(params, mean, z)[..., :1]
+            total = mean + sigma_u * self.unit_gust(params, field_pos)
         elif self.turbulence.enabled:
-            total = mean + self._locally_scaled_gust(state, pos, mean, z)
+            total = mean + self._locally_scaled_gust(params, field_pos, mean, z)
         if self.wind.cap_applies_to == "total":
             total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
-        state = dict(state, air_offset=state["air_offset"] + dt * mean)
+        state = TensorDict(air_offset=state["air_offset"] + dt * mean, batch_size=state.batch_size)
         return mean, total, state
 
-
-    def _locally_scaled_gust(self, state: dict[str, Tensor], pos: Tensor, mean: Tensor, z: Tensor) -> Tensor:
+    def _locally_scaled_gust(self, params: TensorDict, field_pos: Tensor, mean: Tensor, z: Tensor) -> Tensor:
         """``anisotropy="local_scaling"``: the isotropic unit field's components scaled by the
         regime's sigmas in the local mean-wind frame at ``z`` (rotate in, scale, rotate out). Not
         divergence-free; kept, operation for operation, for configs saved before the stretch."""
-        iso = self.unit_gust(state, pos - state["air_offset"])  # isotropic: no stretch in its maps
-        sigma = self.turbulence_sigma(state, mean, z)
+        iso = self.unit_gust(params, field_pos)  # isotropic: no stretch in its maps
+        sigma = self.turbulence_sigma(params, mean, z)
         # (c, s): the unit vector the mean wind blows towards (no atan2: see _profile)
-        _, wind_from = self._profile(state, z)
+        _, wind_from = self._profile(params, z)
         c, s = -torch.sin(wind_from), -torch.cos(wind_from)
         along = c * iso[..., 0] + s * iso[..., 1]
         across = -s * iso[..., 0] + c * iso[..., 1]

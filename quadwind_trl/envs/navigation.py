@@ -15,10 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import GRAVITY_M_S2, NavigationConfig
-from .rotations import rotate, rotmat_from_euler
+from .rotations import quat_from_euler, quat_to_rotmat, rotate
 
 
 @dataclass
@@ -36,26 +37,27 @@ class NavigationParams:
                    cfg.gnss_height_gain, cfg.baro_offset_gain)
 
 
-def init_navigation(meas: Tensor) -> dict[str, Tensor]:
-    """Start from the first measurements: GPS horizontal position, baro altitude, GPS velocity,
-    and a zero barometer offset (its expected value)."""
-    return {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6].clone(),
-            "baro_offset": torch.zeros_like(meas[..., 6:7])}
+def init_navigation(meas: Tensor) -> TensorDict:
+    """The solution read straight off the measurements (the filter's start, and the
+    ``feedback="sensors"`` autopilot): GPS horizontal position, baro altitude, GPS velocity, and a
+    zero barometer offset (its expected value)."""
+    return TensorDict(pos=torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), vel=meas[..., 3:6].clone(),
+                      baro_offset=torch.zeros_like(meas[..., 6:7]), batch_size=meas.shape[:-1])
 
 
 def update_navigation(
-    nav: dict[str, Tensor],
+    nav: TensorDict,
     meas: Tensor,
     accel_mean: Tensor,
     gps_tick: Tensor,
     baro_tick: Tensor,
     p: NavigationParams,
     dt: float,
-) -> dict[str, Tensor]:
+) -> TensorDict:
     """One control step: predict over ``dt`` with ``accel_mean`` ``[N, 3]`` (the body-frame
     accelerometer samples of the step, averaged), then correct with the sensors that ticked
     (bool ``[N, 1]`` masks)."""
-    rot = rotmat_from_euler(meas[..., 7:10])
+    rot = quat_to_rotmat(quat_from_euler(*meas[..., 7:10].unbind(-1)))
     acc = rotate(rot, accel_mean) - meas.new_tensor([0.0, 0.0, GRAVITY_M_S2])
     vel = nav["vel"] + dt * acc
     pos = nav["pos"] + dt * vel
@@ -68,4 +70,4 @@ def update_navigation(
     else:
         pos_z = torch.where(baro_tick, pos_z + p.alt_gain * (baro - pos_z), pos_z)
     vel = torch.where(gps_tick, vel + p.vel_gain * (meas[..., 3:6] - vel), vel)
-    return {"pos": torch.cat((pos_xy, pos_z), -1), "vel": vel, "baro_offset": offset}
+    return TensorDict(pos=torch.cat((pos_xy, pos_z), -1), vel=vel, baro_offset=offset, batch_size=nav.batch_size)

@@ -5,15 +5,16 @@ from dataclasses import dataclass
 from typing import Literal
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import NestedKey, TensorDict, TensorDictBase
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
 from ..validation import check_action, validate_scenarios
-from .scenarios import SCENARIO_FIELDS, RegimeRanges, make_scenarios, random_scenarios
+from .scenarios import RegimeRanges, make_scenarios, random_scenarios
 from .sensors import NUM_SENSOR_CHANNELS
-from .simulator import QuadSimulator, merge_rows
+from .simulator import QuadSimulator
+from .task import Task, TrackingTask
 from .trajectories import HORIZONTAL, trajectory_ids
 
 
@@ -52,8 +53,9 @@ class QuadWindEnv(EnvBase):
 
     The action is the residual wrench in ``[-1, 1]^4`` (collective thrust, roll, pitch, yaw
     torques), scaled, smoothed, slew-limited and added to the PD cascade's output: ``action = 0``
-    is the PD baseline. One step is ``ResidualConfig.hold_control_steps`` 10 ms control steps (5
-    physics substeps each) under the same action; the reward is Eq. (2) averaged over them.
+    is the PD baseline. One step is ``TimingConfig.hold_control_steps`` 10 ms control steps (5
+    physics substeps each) under the same action; the reward is the task's (default
+    :class:`~quadwind_trl.envs.task.TrackingTask`: Eq. (2)) averaged over them.
 
     Observations (all batched ``[N, ...]``, frames in :mod:`quadwind_trl.envs`):
 
@@ -73,9 +75,13 @@ class QuadWindEnv(EnvBase):
     episodes, pass them as a keyword: ``env.reset(scenario=make_scenarios(N, ...))`` (with a
     ``"_reset"`` tensordict, ``env.reset(td, scenario=...)``, to restart only some rows). A keyword
     rather than a tensordict entry because TorchRL's partial-reset merge overwrites, in place,
-    input entries the env does not return, and ``TransformedEnv`` drops them. Episodes terminate on a crash (ground contact
-    after take-off, tilt beyond ``RewardConfig.crash_tilt_deg``, non-finite state: reward
-    ``-100``) and are truncated at the trajectory's end.
+    input entries the env does not return, and ``TransformedEnv`` drops them. With the default
+    task, episodes terminate on a crash (ground contact after take-off, tilt beyond
+    ``RewardConfig.crash_tilt_deg``, non-finite state: reward ``-100``) and are truncated at the
+    trajectory's end; ``task=`` replaces reward and termination (:mod:`quadwind_trl.envs.task`).
+
+    The simulator's per-episode ``params`` and dynamic ``state`` (TensorDicts, keys in
+    :mod:`quadwind_trl.envs.simulator`) are ``env.params`` and ``env.state``.
     """
 
     _batch_locked = True
@@ -89,6 +95,7 @@ class QuadWindEnv(EnvBase):
         scenario_sampler: ScenarioSampler | None = None,
         seed: int = 0,
         compile_step: bool = False,
+        task: Task | None = None,
     ):
         batch_size = torch.Size(batch_size)
         if len(batch_size) != 1:
@@ -97,8 +104,14 @@ class QuadWindEnv(EnvBase):
         self.config = (config or EnvConfig()).validate()
         self.sim = QuadSimulator(self.config, self.device)
         self.scenario_sampler = scenario_sampler or ScenarioSampler()
-        self._sim_step = torch.compile(self.sim.step, dynamic=False) if compile_step else self.sim.step
-        self.state: dict[str, torch.Tensor] | None = None
+        if task is not None:
+            missing = [m for m in ("step_reward", "done", "decision_reward") if not callable(getattr(task, m, None))]
+            if missing:
+                raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
+        self.task = task if task is not None else TrackingTask(self.config)
+        self._advance = torch.compile(self._control_step, dynamic=False) if compile_step else self._control_step
+        self.params: TensorDict | None = None
+        self.state: TensorDict | None = None
         self._make_specs()
         self.set_seed(seed)
 
@@ -156,28 +169,36 @@ class QuadWindEnv(EnvBase):
                 raise ValueError(f"scenario has batch size {list(scenario.batch_size)}, expected [{n}] (one row per sub-env)")
             validate_scenarios(scenario)
         self._episode_count = self._episode_count + mask.to(torch.int64)
-        self.state = self.sim.reset(self.state, scenario, mask)
+        self.params, self.state = self.sim.reset(self.params, self.state, scenario, mask)
         out = self._observation(self.state)
         out.update(self.full_done_spec.zero())
         return out
 
+    def _control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor):
+        """One control step and the task's view of it: ``(state, reward, terminated, truncated)``."""
+        new = self.sim.step(params, state, action)
+        terminated, truncated = self.task.done(params, new)
+        return new, self.task.step_reward(params, state, new), terminated, truncated
+
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action", None)
         check_action(action, self.batch_size[0], 4)
-        state = self._sim_step(self.state, action)
-        reward, steps = state["reward"], torch.ones_like(state["reward"])
-        # a held action: rows that end inside the hold stay frozen at their last state
-        terminated, truncated = state["terminated"], (state["step"] >= state["end_step"]).unsqueeze(-1)
-        for _ in range(self.config.residual.hold_control_steps - 1):
+        params = self.params
+        state, reward, terminated, truncated = self._advance(params, self.state, action)
+        steps = torch.ones_like(reward)
+        # a held action: rows that end inside the hold stay frozen at their last state (a
+        # branch-free merge of the dynamic state only: the params do not change within an episode)
+        for _ in range(self.config.timing.hold_control_steps - 1):
             running = ~(terminated | truncated)
-            state = merge_rows(running.reshape(-1), self._sim_step(state, action), state)
-            reward = reward + torch.where(running, state["reward"], 0.0)
+            new, new_reward, new_terminated, new_truncated = self._advance(params, state, action)
+            state = new.where(running.reshape(-1), state)
+            reward = reward + torch.where(running, new_reward, 0.0)
             steps = steps + running.to(steps.dtype)
-            terminated, truncated = state["terminated"], (state["step"] >= state["end_step"]).unsqueeze(-1)
+            terminated = torch.where(running, new_terminated, terminated)
+            truncated = torch.where(running, new_truncated, truncated)
         self.state = state
         out = self._observation(state)
-        # Eq. (2) averaged over the held control steps, the crash penalty once
-        out.set("reward", reward / steps + torch.where(terminated, self.config.reward.crash_penalty, 0.0))
+        out.set("reward", self.task.decision_reward(reward / steps, terminated))
         out.set("terminated", terminated)
         out.set("truncated", truncated)
         out.set("done", terminated | truncated)
@@ -185,42 +206,47 @@ class QuadWindEnv(EnvBase):
 
     # --- helpers --------------------------------------------------------------------------------
 
-    def _observation(self, s: dict[str, torch.Tensor]) -> TensorDict:
+    def _observation(self, s: TensorDict) -> TensorDict:
+        body, nav, ref, control = s["body"], s["nav"], s["ref"], s["control"]
         return TensorDict(
             {
-                "meas": s["meas"],
-                "ref_pos": s["ref_pos"],
-                "ref_vel": s["ref_vel"],
-                "ref_acc": s["ref_acc"],
-                "ref_yaw": s["ref_yaw"],
-                "nav_pos": s["nav.pos"],
-                "nav_vel": s["nav.vel"],
-                "pos_error": s["nav.pos"] - s["ref_pos"],
-                "pd_wrench": s["pd_wrench"],
-                "ff_wrench": s["ff"],
-                "cmd_wrench": s["cmd"],
-                "tilt_cmd": s["tilt_cmd"],
-                "tilt_saturated": s["tilt_saturated"],
+                "meas": s["sensors", "meas"],
+                "ref_pos": ref["pos"],
+                "ref_vel": ref["vel"],
+                "ref_acc": ref["acc"],
+                "ref_yaw": ref["yaw"],
+                "nav_pos": nav["pos"],
+                "nav_vel": nav["vel"],
+                "pos_error": nav["pos"] - ref["pos"],
+                "pd_wrench": control["pd_wrench"],
+                "ff_wrench": control["ff"],
+                "cmd_wrench": control["cmd"],
+                "tilt_cmd": control["tilt_cmd"],
+                "tilt_saturated": control["tilt_saturated"],
                 "step": s["step"].unsqueeze(-1),
                 "truth": {
-                    "pos": s["pos"],
-                    "vel": s["vel"],
-                    "quat": s["quat"],
-                    "omega": s["omega"],
-                    "wind": s["wind_total"],
-                    "mean_wind": s["wind_mean"],
+                    "pos": body["pos"],
+                    "vel": body["vel"],
+                    "quat": body["quat"],
+                    "omega": body["omega"],
+                    "wind": s["wind", "total"],
+                    "mean_wind": s["wind", "mean"],
                 },
             },
             batch_size=self.batch_size,
             device=self.device,
         )
 
-    def sim_state(self, key: str) -> torch.Tensor:
-        """A copy of one entry of the simulator state (e.g. ``"pattern_start"``, ``"rotor"``)."""
-        return self.state[key].clone()
+    def sim_state(self, key: NestedKey) -> torch.Tensor:
+        """A copy of one entry of the simulator's state or, failing that, of its per-episode
+        params (e.g. ``"pattern_start"``, ``("body", "rotor")``, ``("wind", "phase")``)."""
+        for td in (self.state, self.params):
+            value = td.get(key, None)
+            if value is not None:
+                return value.clone()
+        raise KeyError(f"{key!r} is neither a simulator state nor a params entry; state: "
+                       f"{sorted(self.state.keys(True, True))}, params: {sorted(self.params.keys(True, True))}")
 
     def scenario(self) -> TensorDict:
         """The scenarios of the episodes now running (a copy)."""
-        return make_scenarios(
-            self.batch_size[0], device=self.device, check=False, **{k: self.state[f"scenario.{k}"] for k in SCENARIO_FIELDS}
-        )
+        return make_scenarios(self.batch_size[0], device=self.device, check=False, **self.params["scenario"].to_dict())

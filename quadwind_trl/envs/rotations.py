@@ -71,11 +71,6 @@ def euler_from_rotmat(r: Tensor) -> Tensor:
     return torch.stack((roll, pitch, yaw), -1)
 
 
-def rotmat_from_euler(euler: Tensor) -> Tensor:
-    roll, pitch, yaw = euler.unbind(-1)
-    return quat_to_rotmat(quat_from_euler(roll, pitch, yaw))
-
-
 def quat_integrate(q: Tensor, omega_body: Tensor, dt: float) -> Tensor:
     """Rotate ``q`` by a constant body rate over ``dt`` (exact exponential map), renormalised."""
     half_angle = 0.5 * dt * omega_body

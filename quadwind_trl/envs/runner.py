@@ -78,7 +78,7 @@ def iter_flights(
     """Fly ``scenarios`` (batch ``[M]``) in chunks of the env's batch size, longest first.
 
     The position error is scored at every env step (every control step, or every
-    ``hold_control_steps``-th when the env holds actions) after the pattern starts (for horizontal
+    ``TimingConfig.hold_control_steps``-th when the env holds actions) after the pattern starts (for horizontal
     flights: after the climb) up to the end of the episode; the flight record holds every 10th
     control step from the episode start. ``policy=None`` flies the PD baseline (zero action).
     ``progress``: a tqdm bar (``None``, the default: shown once the flights have taken
@@ -170,9 +170,9 @@ def _fly_chunk(
     count = torch.zeros(n, device=dev)
     crashed = torch.zeros(n, dtype=torch.bool, device=dev)
     zero_action = torch.zeros(n, 4, device=dev)
-    hold = base.config.residual.hold_control_steps  # control steps per env step (divides log_every)
+    timing = base.config.timing
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for i in range(1, -(-num_steps // hold) + 1):
+        for i in range(1, -(-num_steps // timing.hold_control_steps) + 1):
             if policy is None:
                 td.set("action", zero_action)
             else:
@@ -188,7 +188,7 @@ def _fly_chunk(
             nav_sq_z += torch.where(scored, nav_err[..., 2].pow(2), 0.0)
             count += scored
             crashed |= active & nxt.get("terminated").squeeze(-1)
-            if (i * hold) % log_every == 0:
+            if i % timing.decisions_per_log == 0:
                 records.append(nxt.select(*log_keys))
                 valid.append(active.clone())
             active = active & ~nxt.get("done").squeeze(-1)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 
 import torch
+from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import SensorConfig, SensorChannelConfig
@@ -103,27 +104,32 @@ class SensorSuite:
         """bool ``[N, 1]``: whether ``channel``'s instrument delivers a new sample at ``step``."""
         return (step % self.period[channel] == 0).unsqueeze(-1)
 
-    def init_state(self, sensor_seed: Tensor) -> dict[str, Tensor]:
+    def init(self, sensor_seed: Tensor) -> tuple[TensorDict, TensorDict]:
+        """``(params, state)`` of a batch of episodes: the noise seed ``[N]``, and the instruments'
+        state (biases from their stationary distribution, nothing held yet)."""
         n = sensor_seed.shape[0]
         zeros = torch.zeros(n, NUM_SENSOR_CHANNELS, device=sensor_seed.device)
         bias = self.bias_std * hash_normal(sensor_seed, 0, _STREAM_INITIAL_BIAS, NUM_SENSOR_CHANNELS)
-        return {"seed": sensor_seed, "bias": bias, "held": zeros, "imu_mean": zeros[..., _IMU].clone()}
+        params = TensorDict(seed=sensor_seed, batch_size=[n])
+        return params, TensorDict(bias=bias, held=zeros, imu_mean=zeros[..., _IMU].clone(), batch_size=[n])
 
     def measure(
         self,
-        state: dict[str, Tensor],
+        params: TensorDict,
+        state: TensorDict,
         truth: Tensor,
         step: Tensor,
         force: Tensor | None = None,
         imu_truth_sub: Tensor | None = None,
-    ) -> tuple[Tensor, dict[str, Tensor]]:
+    ) -> tuple[Tensor, TensorDict]:
         """Measurements ``[N, 16]`` at control step ``step`` ``[N]`` from the true values ``truth``
         ``[N, 16]`` (same channel order). ``force`` (bool ``[N, 1]``) samples every channel, for
         the first measurement of an episode. ``imu_truth_sub`` ``[N, m - 1, 6]``: the true body
         rate and specific force at the IMU's intermediate samples since the last control step
         (only with ``m > 1``; none at an episode's first measurement)."""
         if not self.cfg.enabled:
-            return truth, dict(state, imu_mean=truth[..., _IMU])
+            return truth, TensorDict(bias=state["bias"], held=state["held"], imu_mean=truth[..., _IMU],
+                                     batch_size=state.batch_size)
         tick = (step.unsqueeze(-1) % self.period) == 0
         if force is not None:
             tick = tick | force
@@ -132,13 +138,13 @@ class SensorSuite:
         if imu_truth_sub is not None:
             # the IMU's intermediate samples, in time order, each with its own noise and bias step
             sub = imu_truth_sub.shape[-2]
-            draws = hash_normal(state["seed"], step, _STREAM_IMU_SUBSAMPLES, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
+            draws = hash_normal(params["seed"], step, _STREAM_IMU_SUBSAMPLES, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
             imu_bias, imu_sum = bias[..., _IMU], 0.0
             for j in range(sub):
                 imu_bias = self.bias_decay[_IMU] * imu_bias + self.bias_step_std[_IMU] * draws[..., j, _NUM_IMU:]
                 imu_sum = imu_sum + imu_truth_sub[..., j, :] + imu_bias + self.noise_std[_IMU] * draws[..., j, :_NUM_IMU]
             bias = torch.cat((bias[..., :10], imu_bias), -1)
-        draws = hash_normal(state["seed"], step, _STREAM_SENSORS, 2 * NUM_SENSOR_CHANNELS)
+        draws = hash_normal(params["seed"], step, _STREAM_SENSORS, 2 * NUM_SENSOR_CHANNELS)
         stepped = self.bias_decay * bias + self.bias_step_std * draws[..., NUM_SENSOR_CHANNELS:]
         bias = torch.where(tick, stepped, bias)
         sample = truth + bias + self.noise_std * draws[..., :NUM_SENSOR_CHANNELS]
@@ -149,4 +155,4 @@ class SensorSuite:
         sample = torch.cat((sample[..., :_YAW], yaw, sample[..., _YAW + 1 :]), -1)
         held = torch.where(tick, sample, state["held"])
         imu_mean = held[..., _IMU] if imu_sum is None else (imu_sum + held[..., _IMU]) / self.imu_samples_per_step
-        return held, dict(state, bias=bias, held=held, imu_mean=imu_mean)
+        return held, TensorDict(bias=bias, held=held, imu_mean=imu_mean, batch_size=state.batch_size)

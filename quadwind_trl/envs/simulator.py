@@ -1,8 +1,25 @@
-"""The batched simulator core: pure functions over a dict of ``[N, ...]`` state tensors.
+"""The batched simulator core: pure functions over two TensorDicts of batch ``[N]``.
+
+``params`` holds what is fixed for an episode, written only when it starts: the scenario
+(``params["scenario"]``, the fields of ``SCENARIO_FIELDS``), its schedule (``pattern_start``,
+``end_step``), the atmosphere's per-episode constants (``params["wind"]``: profile, field maps,
+mode phases and amplitudes or cube) and the sensor noise seed (``params["sensors"]``).
+``state`` holds what a step changes, one sub-tensordict per concept:
+
+* ``step`` [N]: the control-step counter; ``finite`` [N, 1]: the physics stayed finite;
+* ``body``: the rigid body (``pos``, ``pos_carry``, ``vel``, ``quat``, ``omega``, ``rotor``,
+  :class:`~quadwind_trl.envs.vehicle.RigidBody`) and its ``specific_force``;
+* ``wind``: ``air_offset`` (the frozen field's advection), ``mean`` and ``total`` air velocity;
+* ``sensors``: ``bias``, ``held``, ``imu_mean`` and the measurements ``meas`` [N, 16];
+* ``nav``: the navigation solution the PD flies on (``pos``, ``vel``, ``baro_offset``);
+* ``ref``: the reference (``pos``, ``vel``, ``acc``, ``yaw``);
+* ``control``: the PD output (``pd_wrench``, ``tilt_cmd``, ``tilt_saturated``), the residual
+  ``ff`` and the total command ``cmd``.
 
 :class:`QuadSimulator` composes the vehicle, the PD cascade, the trajectory library, the
-atmosphere and the sensors. Its two methods are pure (state in, state out), so the TorchRL env,
-the PD-only runner and ``torch.compile`` all drive exactly the same code.
+atmosphere and the sensors. Its methods are pure (in, out), so the TorchRL env, the PD-only
+runner and ``torch.compile`` all drive exactly the same code. Reward and termination are the
+task's (:mod:`quadwind_trl.envs.task`), not the physics'.
 
 One control step (10 ms) from state ``k`` (which already holds the wind, reference, measurements
 and PD wrench *at* step ``k``):
@@ -10,11 +27,9 @@ and PD wrench *at* step ``k``):
 1. residual: scale the action, smooth it, limit its slew, add it to the PD wrench;
 2. allocate rotor speeds (motors off before arming) and run 5 physics substeps with the wind held;
 3. at step ``k + 1``: sample the wind (advecting the frozen turbulence), the reference, the
-   sensors, and the PD wrench for the next step; the reward, termination and truncation.
+   sensors, and the PD wrench for the next step.
 """
 from __future__ import annotations
-
-import math
 
 import torch
 from tensordict import TensorDict
@@ -24,7 +39,7 @@ from ..config import GRAVITY_M_S2, EnvConfig
 from .atmosphere import Atmosphere
 from .controller import ControllerParams, pd_control
 from .navigation import NavigationParams, init_navigation, update_navigation
-from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse, rotmat_from_euler
+from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
 from .trajectories import TrajectoryLibrary, registered_patterns
@@ -36,21 +51,13 @@ _TRAJECTORY_CACHE: dict = {}
 def trajectory_library(cfg: EnvConfig, device: torch.device) -> TrajectoryLibrary:
     """Trajectory tables are built once per (config, device, registered patterns) in a process:
     a pattern registered later gets new tables."""
-    key = (cfg.trajectories, cfg.timing, str(device), tuple(registered_patterns().items()))
+    key = (cfg.trajectories, cfg.timing.control_dt_s, cfg.timing.log_every_control_steps, str(device),
+           tuple(registered_patterns().items()))
     if key not in _TRAJECTORY_CACHE:
         _TRAJECTORY_CACHE[key] = TrajectoryLibrary(
             cfg.trajectories, cfg.timing.control_dt_s, device, align_steps=cfg.timing.log_every_control_steps
         )
     return _TRAJECTORY_CACHE[key]
-
-
-def merge_rows(mask: Tensor, new: dict[str, Tensor], old: dict[str, Tensor]) -> dict[str, Tensor]:
-    """Row-wise ``where(mask, new, old)`` over every entry (``mask`` is bool ``[N]``)."""
-    out = {}
-    for key, value in new.items():
-        m = mask.reshape(mask.shape + (1,) * (value.ndim - 1))
-        out[key] = torch.where(m, value, old[key])
-    return out
 
 
 class QuadSimulator:
@@ -69,16 +76,14 @@ class QuadSimulator:
         self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
         self.control_dt = c.timing.control_dt_s
         self.arm_step = self.trajectories.arm_step
-        self.grace_steps = self.arm_step + int(round(c.reward.takeoff_grace_s / self.control_dt))
-        self.cos_crash_tilt = math.cos(math.radians(c.reward.crash_tilt_deg))
 
     # --- episode start ------------------------------------------------------------------------
 
-    def initial_state(self, scenario: TensorDict) -> dict[str, Tensor]:
-        """The state at each scenario's ``start_step``: at the reference, level (with the
+    def initial(self, scenario: TensorDict) -> tuple[TensorDict, TensorDict]:
+        """``(params, state)`` at each scenario's ``start_step``: at the reference, level (with the
         reference heading), at rest relative to the reference; rotors at hover if airborne."""
-        sc = {k: scenario.get(k).to(self.device) for k in SCENARIO_FIELDS}
-        n = sc["traj_id"].shape[0]
+        sc = TensorDict({k: scenario.get(k).to(self.device) for k in SCENARIO_FIELDS}, batch_size=scenario.batch_size)
+        n = sc.batch_size[0]
         pattern_start, end_step = self.trajectories.schedule(sc["traj_id"], sc["altitude_m"])
         # a negative start_step means "at the start of the pattern" (airborne, after any climb)
         step = torch.where(sc["start_step"] < 0, pattern_start, sc["start_step"])
@@ -86,166 +91,150 @@ class QuadSimulator:
         zero = torch.zeros_like(ref.yaw)
         airborne = ref.pos[..., 2:] > 0
         hover = self.cfg.vehicle.hover_rotor_speed_rad_s
-        state = {f"scenario.{k}": v for k, v in sc.items()}
-        state.update(
-            step=step,
-            pattern_start=pattern_start,
-            end_step=end_step,
+        wind_params, wind_state = self.atmosphere.init(sc)
+        sensor_params, sensor_state = self.sensors.init(sc["sensor_seed"])
+        params = TensorDict(scenario=sc, pattern_start=pattern_start, end_step=end_step, wind=wind_params,
+                            sensors=sensor_params, batch_size=[n])
+        quat = quat_from_euler(zero, zero, ref.yaw).squeeze(-2)
+        gravity = torch.tensor([0.0, 0.0, GRAVITY_M_S2], device=self.device).expand(n, 3)
+        body = TensorDict(
             pos=ref.pos,
             pos_carry=torch.zeros_like(ref.pos),
             vel=ref.vel,
-            quat=quat_from_euler(zero, zero, ref.yaw).squeeze(-2),
+            quat=quat,
             omega=torch.zeros(n, 3, device=self.device),
             rotor=torch.where(airborne, hover, 0.0).expand(n, 4).clone(),
-            specific_force=torch.zeros(n, 3, device=self.device),
-            ff=torch.zeros(n, 4, device=self.device),
-            cmd=torch.zeros(n, 4, device=self.device),
-            reward=torch.zeros(n, 1, device=self.device),
-            terminated=torch.zeros(n, 1, dtype=torch.bool, device=self.device),
+            specific_force=rotate_inverse(quat_to_rotmat(quat), gravity),
+            batch_size=[n],
         )
-        state["specific_force"] = rotate_inverse(
-            quat_to_rotmat(state["quat"]), torch.tensor([0.0, 0.0, GRAVITY_M_S2], device=self.device).expand(n, 3)
-        )
-        state.update({f"wind.{k}": v for k, v in self.atmosphere.init_state(sc).items()})
-        state.update({f"sensor.{k}": v for k, v in self.sensors.init_state(sc["sensor_seed"]).items()})
-        state = self._observe_instant(state, first=True)
+        control = TensorDict(ff=torch.zeros(n, 4, device=self.device), cmd=torch.zeros(n, 4, device=self.device),
+                             batch_size=[n])
+        state = TensorDict(step=step, finite=torch.ones(n, 1, dtype=torch.bool, device=self.device), body=body,
+                           wind=wind_state, sensors=sensor_state, control=control, batch_size=[n])
+        state = self._observe_instant(params, state, first=True)
         # an airborne start has been flying under the PD: report that as the last command
-        state["cmd"] = torch.where(airborne & (step >= self.arm_step).unsqueeze(-1), state["pd_wrench"], 0.0)
-        return state
+        control = state["control"]
+        control["cmd"] = torch.where(airborne & (step >= self.arm_step).unsqueeze(-1), control["pd_wrench"], 0.0)
+        return params, state
 
-    def reset(self, state: dict[str, Tensor] | None, scenario: TensorDict, mask: Tensor | None = None) -> dict[str, Tensor]:
-        """Start the episodes of rows ``mask`` (all rows if None) from ``scenario`` (all rows);
-        other rows keep their state untouched."""
-        new = self.initial_state(scenario)
+    def reset(
+        self, params: TensorDict | None, state: TensorDict | None, scenario: TensorDict, mask: Tensor | None = None
+    ) -> tuple[TensorDict, TensorDict]:
+        """Start the episodes of rows ``mask`` (bool ``[N]``; all rows if None) from ``scenario``
+        (all rows); other rows keep their params and state untouched. Branch-free."""
+        new_params, new_state = self.initial(scenario)
         if state is None or mask is None:
-            return new
-        return merge_rows(mask.reshape(-1), new, state)
+            return new_params, new_state
+        mask = mask.reshape(-1)
+        return new_params.where(mask, params), new_state.where(mask, state)
 
     # --- one control step ---------------------------------------------------------------------
 
-    def step(self, state: dict[str, Tensor], action: Tensor) -> dict[str, Tensor]:
-        """Advance every row by one control step under residual ``action`` in ``[-1, 1]^4``."""
+    def step(self, params: TensorDict, state: TensorDict, action: Tensor) -> TensorDict:
+        """The state one control step on, every row under residual ``action`` in ``[-1, 1]^4``."""
         r = self.cfg.residual
-        ff_prev = state["ff"]
+        ff_prev = state["control", "ff"]
         target = action.clamp(-1.0, 1.0) * self.action_scale
         ff = r.smoothing * ff_prev + (1.0 - r.smoothing) * target
         ff = ff_prev + torch.maximum(torch.minimum(ff - ff_prev, self.slew_limit), -self.slew_limit)
         armed = (state["step"] >= self.arm_step).unsqueeze(-1)
-        cmd = torch.where(armed, state["pd_wrench"] + ff, 0.0)  # what is applied: motors off before arming
+        cmd = torch.where(armed, state["control", "pd_wrench"] + ff, 0.0)  # what is applied: motors off before arming
         rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
 
-        body = RigidBody(*(state[k] for k in RigidBody._fields))
+        body = RigidBody(*(state["body", k] for k in RigidBody._fields))
+        wind_total = state["wind", "total"]
         imu_sub = []  # body rate and specific force at the IMU's intermediate sample instants
         for i in range(1, self.cfg.timing.control_substeps + 1):
-            body, specific_force = physics_step(
-                body, rotor_cmd, state["wind_total"], self.vehicle, self.cfg.timing.physics_dt_s
-            )
+            body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s)
             if i in self.imu_substeps:
                 imu_sub.append(torch.cat((body.omega, specific_force), -1))
-        new = dict(state, specific_force=specific_force, **body._asdict())
-        new.update(step=state["step"] + 1, ff=ff, cmd=cmd)
-        new = self._observe_instant(new, first=False, imu_truth_sub=torch.stack(imu_sub, -2) if imu_sub else None)
-
-        rw = self.cfg.reward
-        err = new["pos"] - new["ref_pos"]
-        reward = (
-            rw.alive_bonus
-            - rw.w_xy * err[..., :2].norm(dim=-1, keepdim=True)
-            - rw.w_z * err[..., 2:].abs()
-            - rw.w_ff * ff.norm(dim=-1, keepdim=True)
-            - rw.w_dff * (ff - ff_prev).norm(dim=-1, keepdim=True)
+        n = state.batch_size
+        new = TensorDict(
+            step=state["step"] + 1,
+            body=TensorDict(specific_force=specific_force, **body._asdict(), batch_size=n),
+            wind=state["wind"],
+            sensors=state["sensors"],
+            nav=state["nav"],
+            control=TensorDict(ff=ff, cmd=cmd, batch_size=n),
+            batch_size=n,
         )
-        finite = torch.stack([torch.isfinite(new[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
-        upright = quat_to_rotmat(new["quat"])[..., 2, 2:3] > self.cos_crash_tilt
-        grounded = (new["pos"][..., 2:] <= 0.0) & (new["step"] > self.grace_steps).unsqueeze(-1)
-        terminated = ~finite | ~upright | grounded
-        # the shaped part of Eq. (2); the env adds the crash penalty once per decision
-        new["reward"] = torch.where(finite, reward, 0.0)
-        new["terminated"] = terminated
+        new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, -2) if imu_sub else None)
+        b = new["body"]
+        finite = torch.stack([torch.isfinite(b[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
+        new["finite"] = finite
         return _sanitize(new, ~finite)
 
     # --- what the vehicle and the world look like at one instant --------------------------------
 
     def _observe_instant(
-        self, state: dict[str, Tensor], first: bool, imu_truth_sub: Tensor | None = None
-    ) -> dict[str, Tensor]:
-        """Wind, reference, sensors and the PD wrench at the state's current step
-        (``imu_truth_sub``: the IMU's true inputs at its samples inside the step just flown)."""
-        wind_state = {k[5:]: v for k, v in state.items() if k.startswith("wind.")}
-        mean, total, wind_state = self.atmosphere.sample(wind_state, state["pos"], self.control_dt)
-        ref = self.trajectories.reference(
-            state["scenario.traj_id"], state["step"], state["pattern_start"], state["scenario.altitude_m"]
-        )
-        rot = quat_to_rotmat(state["quat"])
+        self, params: TensorDict, state: TensorDict, first: bool, imu_truth_sub: Tensor | None = None
+    ) -> TensorDict:
+        """``state`` completed with the wind, reference, sensors, navigation and the PD wrench at
+        its current step (``imu_truth_sub``: the IMU's true inputs at its samples inside the step
+        just flown)."""
+        body, step, sc = state["body"], state["step"], params["scenario"]
+        pos = body["pos"]
+        mean, total, wind_state = self.atmosphere.sample(params["wind"], state["wind"], pos, self.control_dt)
+        ref = self.trajectories.reference(sc["traj_id"], step, params["pattern_start"], sc["altitude_m"])
+        rot = quat_to_rotmat(body["quat"])
         euler = euler_from_rotmat(rot)
-        truth = torch.cat(
-            (state["pos"], state["vel"], state["pos"][..., 2:], euler, state["omega"], state["specific_force"]), -1
-        )
-        sensor_state = {k[7:]: v for k, v in state.items() if k.startswith("sensor.")}
-        force = torch.ones_like(state["step"], dtype=torch.bool).unsqueeze(-1) if first else None
-        meas, sensor_state = self.sensors.measure(sensor_state, truth, state["step"], force=force,
-                                                 imu_truth_sub=imu_truth_sub)
+        truth = torch.cat((pos, body["vel"], pos[..., 2:], euler, body["omega"], body["specific_force"]), -1)
+        force = torch.ones_like(step, dtype=torch.bool).unsqueeze(-1) if first else None
+        meas, sensor_state = self.sensors.measure(params["sensors"], state["sensors"], truth, step, force=force,
+                                                  imu_truth_sub=imu_truth_sub)
 
-        out = dict(state)
         feedback = self.cfg.controller.feedback
         if feedback == "truth":
-            nav = (state["pos"], state["vel"], rot, state["omega"])
-            out.update({"nav.pos": state["pos"], "nav.vel": state["vel"],
-                        "nav.baro_offset": torch.zeros_like(state["pos"][..., 2:])})
+            nav = TensorDict(pos=pos, vel=body["vel"], baro_offset=torch.zeros_like(pos[..., 2:]), batch_size=state.batch_size)
+            nav_rot, nav_omega = rot, body["omega"]
         else:
-            if feedback == "sensors":
-                estimate = {"pos": torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), "vel": meas[..., 3:6],
-                            "baro_offset": torch.zeros_like(meas[..., 6:7])}
-            elif first:
-                estimate = init_navigation(meas)
+            if feedback == "sensors" or first:
+                nav = init_navigation(meas)
             else:
-                estimate = update_navigation(
-                    {"pos": state["nav.pos"], "vel": state["nav.vel"], "baro_offset": state["nav.baro_offset"]},
+                nav = update_navigation(
+                    state["nav"],
                     meas,
                     sensor_state["imu_mean"][..., 3:],
-                    self.sensors.ticks(state["step"], 0),
-                    self.sensors.ticks(state["step"], 6),
+                    self.sensors.ticks(step, 0),
+                    self.sensors.ticks(step, 6),
                     self.navigation,
                     self.control_dt,
                 )
-            out.update({f"nav.{k}": v for k, v in estimate.items()})
-            nav = (estimate["pos"], estimate["vel"], rotmat_from_euler(meas[..., 7:10]), meas[..., 10:13])
-        pd = pd_control(*nav, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw, ref.yaw_rate, self.controller)
+            nav_rot, nav_omega = quat_to_rotmat(quat_from_euler(*meas[..., 7:10].unbind(-1))), meas[..., 10:13]
+        pd = pd_control(nav["pos"], nav["vel"], nav_rot, nav_omega, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw,
+                        ref.yaw_rate, self.controller)
 
-        out.update({f"wind.{k}": v for k, v in wind_state.items()})
-        out.update({f"sensor.{k}": v for k, v in sensor_state.items()})
-        out.update(
-            wind_mean=mean,
-            wind_total=total,
-            ref_pos=ref.pos,
-            ref_vel=ref.vel,
-            ref_acc=ref.acc,
-            ref_yaw=ref.yaw,
-            meas=meas,
-            pd_wrench=pd.wrench,
-            tilt_cmd=pd.tilt_cmd,
-            tilt_saturated=pd.tilt_saturated,
-        )
+        out = state.clone(recurse=False)
+        wind_state.update(dict(mean=mean, total=total))
+        sensor_state["meas"] = meas
+        out.update(dict(wind=wind_state, sensors=sensor_state, nav=nav))
+        out["ref"] = TensorDict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw, batch_size=state.batch_size)
+        control = out["control"].clone(recurse=False)
+        control.update(dict(pd_wrench=pd.wrench, tilt_cmd=pd.tilt_cmd, tilt_saturated=pd.tilt_saturated))
+        out["control"] = control
         return out
 
 
-def _sanitize(state: dict[str, Tensor], broken: Tensor) -> dict[str, Tensor]:
+def _sanitize(state: TensorDict, broken: Tensor) -> TensorDict:
     """Rows whose physics went non-finite are parked at their reference, level and at rest, so
-    nothing non-finite leaves the simulator (they are terminated in the same step). Branch-free:
-    no host synchronisation in the step."""
-    level = torch.zeros_like(state["quat"])
+    nothing non-finite leaves the simulator (the task terminates them in the same step, on
+    ``state["finite"]``). Branch-free: no host synchronisation in the step."""
+    body = state["body"]
+    level = torch.zeros_like(body["quat"])
     level[..., 0] = 1.0
     fixes = {
-        "pos": state["ref_pos"],
-        "pos_carry": torch.zeros_like(state["pos_carry"]),
-        "vel": torch.zeros_like(state["vel"]),
+        "pos": state["ref", "pos"],
+        "pos_carry": torch.zeros_like(body["pos_carry"]),
+        "vel": torch.zeros_like(body["vel"]),
         "quat": level,
-        "omega": torch.zeros_like(state["omega"]),
-        "specific_force": torch.zeros_like(state["specific_force"]),
+        "omega": torch.zeros_like(body["omega"]),
+        "specific_force": torch.zeros_like(body["specific_force"]),
     }
-    out = dict(state)
-    for key, value in fixes.items():
-        out[key] = torch.where(broken, value, state[key])
-    for key in ("meas", "pd_wrench", "cmd", "ff", "wind_total", "wind_mean"):
-        out[key] = torch.where(broken, 0.0, state[key].nan_to_num())
+    out = state.clone(recurse=False)
+    out["body"] = body.clone(recurse=False).update({k: torch.where(broken, v, body[k]) for k, v in fixes.items()})
+    zeroed = {"sensors": ("meas",), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
+    for group, keys in zeroed.items():
+        sub = state[group].clone(recurse=False)
+        sub.update({k: torch.where(broken, 0.0, sub[k].nan_to_num()) for k in keys})
+        out[group] = sub
     return out

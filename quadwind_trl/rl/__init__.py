@@ -9,7 +9,8 @@
 * ``cli``: what the two PPO recipes share.
 """
 from .config import Curriculum, PPOConfig, vertical_curriculum
-from .envs import EnvFactory, RLEnvSpec, build_env, make_env, regime_config
+from ..regimes import regime_config
+from .envs import EnvFactory, RLEnvSpec, build_env, make_env
 from .paired import fly_paired, paired_metrics
 from .policy import build_actor_critic, load_policy
 from .trainer import PPOResult, PPOTrainer

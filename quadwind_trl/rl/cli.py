@@ -16,8 +16,9 @@ import torch
 from ..config import SENSING, with_sensing
 from ..estimator import default_estimator_path, load_estimator
 from ..quick import PPO_QUICK
+from ..regimes import regime_config
 from .config import PPOConfig, vertical_curriculum
-from .envs import DEFAULT_RANGES, RLEnvSpec, regime_config
+from .envs import DEFAULT_RANGES, RLEnvSpec
 from .paired import default_eval_scenarios
 from .trainer import PPOTrainer
 

@@ -38,30 +38,15 @@ from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
 from ..keys import OBSERVATION_KEY
-from ..regimes import HORIZONTAL_RL, VERTICAL_RL
+from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
 from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, WindZero
 
 T = TypeVar("T")
 Regime = Literal["horizontal", "vertical"]
 WindInput = Literal["estimate", "zero", "truth"]
 WIND_INPUTS = ("estimate", "zero", "truth")
-REWARD_W_Z = {"horizontal": 1.0, "vertical": 0.5}  # paper: beta
-# one policy decision per 10 Hz log tick, when the wind estimate updates (docs/rl.md: why)
-POLICY_HOLD_STEPS = 10
 DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
-
-
-def regime_config(regime: Regime, base: EnvConfig | None = None, hold_control_steps: int = POLICY_HOLD_STEPS) -> EnvConfig:
-    """``base`` (default ``EnvConfig()``) with the regime's reward weight ``w_z`` (paper: 1.0
-    horizontal, 0.5 vertical) and the policy's decision period ``hold_control_steps``."""
-    _check_regime(regime)
-    base = base or EnvConfig()
-    return replace(
-        base,
-        reward=replace(base.reward, w_z=REWARD_W_Z[regime]),
-        residual=replace(base.residual, hold_control_steps=hold_control_steps),
-    )
 
 
 def _check_regime(regime: str) -> None:
@@ -134,9 +119,8 @@ def build_env(
     base = QuadWindEnv(cfg, batch_size=[spec.num_envs], device=spec.device, scenario_sampler=sampler, seed=spec.seed,
                        compile_step=spec.compile_step)
     source = "truth" if spec.wind_input == "truth" else "estimate"
-    align = cfg.timing.log_every_control_steps // cfg.residual.hold_control_steps
     transforms = [
-        EpisodeControl(spec.desync_steps, seed=spec.seed, align=align),
+        EpisodeControl(spec.desync_steps, seed=spec.seed, align=cfg.timing.decisions_per_log),
         WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg),
         PolicyObservation(cfg),
         RunningObsNorm(in_keys=[OBSERVATION_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True),
@@ -247,7 +231,6 @@ __all__ = [
     "build_env",
     "make_env",
     "policy_ema_tau_s",
-    "regime_config",
     "find_transform",
     "vecnorm",
     "vecnorm_state_dict",

@@ -42,7 +42,7 @@ def episode_steps_hint(spec: RLEnvSpec) -> int:
     ids = trajectory_ids(traj)
     start, end = trajectory_library(spec.env_config, "cpu").schedule(ids, torch.full((len(traj),), float(alt)))
     steps = end - start if spec.start == "pattern" else end
-    return max(1, int(steps.float().mean()) // spec.env_config.residual.hold_control_steps)
+    return max(1, int(steps.float().mean()) // spec.env_config.timing.hold_control_steps)
 
 
 @dataclass
