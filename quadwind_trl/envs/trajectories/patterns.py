@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from torch import Tensor
 
-from .base import ClimbingPattern, LevelPattern, register_trajectory
+from .base import ClimbingPattern, LevelPattern, register_trajectory, registered_patterns
 from .paths import circle, lemniscate, raster, rose, stadium, still
 
 
@@ -46,49 +46,46 @@ class Lawnmower(LevelPattern):
         return raster(s, self.cfg.lawnmower_leg_m, self.cfg.lawnmower_spacing_m, self.cfg.lawnmower_legs)
 
 
-# TrajectoryConfig.vertical_climb_rate_m_s holds the four vertical patterns' climb rates, in this order
+# the paper's two libraries, by name
+HORIZONTAL = ("loiter_circle_h", "racetrack_h", "figure8_h", "cloverleaf_h", "lawnmower_h")
+VERTICAL = ("vertical_climb", "spiral_ascent", "figure8_3d", "lawnmower_scan")
+HOVER = "hover"
 
 
-@register_trajectory("vertical_climb")
-class VerticalClimb(ClimbingPattern):
-    speed = 0.0  # straight up: no horizontal motion
+class _PaperClimb(ClimbingPattern):
+    """The paper's vertical patterns: each climbs at its entry of
+    ``TrajectoryConfig.vertical_climb_rate_m_s``, which lists them in ``VERTICAL`` order."""
 
     @property
     def climb_rate(self) -> float:
-        return self.cfg.vertical_climb_rate_m_s[0]
+        name = next(n for n, cls in registered_patterns().items() if cls is type(self))
+        return self.cfg.vertical_climb_rate_m_s[VERTICAL.index(name)]
+
+
+@register_trajectory("vertical_climb")
+class VerticalClimb(_PaperClimb):
+    speed = 0.0  # straight up: no horizontal motion
 
     def path(self, s: Tensor) -> Tensor:
         return still(s)
 
 
 @register_trajectory("spiral_ascent")
-class SpiralAscent(ClimbingPattern):
-    @property
-    def climb_rate(self) -> float:
-        return self.cfg.vertical_climb_rate_m_s[1]
-
+class SpiralAscent(_PaperClimb):
     def path(self, s: Tensor) -> Tensor:
         return circle(s, self.cfg.spiral_radius_m)
 
 
 @register_trajectory("figure8_3d")
-class Figure8Climb(ClimbingPattern):
+class Figure8Climb(_PaperClimb):
     by_phase = True
-
-    @property
-    def climb_rate(self) -> float:
-        return self.cfg.vertical_climb_rate_m_s[2]
 
     def path(self, s: Tensor) -> Tensor:
         return lemniscate(s, self.cfg.figure8_3d_half_length_m)
 
 
 @register_trajectory("lawnmower_scan")
-class LawnmowerScan(ClimbingPattern):
-    @property
-    def climb_rate(self) -> float:
-        return self.cfg.vertical_climb_rate_m_s[3]
-
+class LawnmowerScan(_PaperClimb):
     def path(self, s: Tensor) -> Tensor:
         return raster(s, self.cfg.scan_leg_m, self.cfg.scan_spacing_m, self.cfg.scan_legs)
 
@@ -106,8 +103,3 @@ class Hover(LevelPattern):
     def path(self, s: Tensor) -> Tensor:
         return still(s)
 
-
-# the paper's two libraries, by name
-HORIZONTAL = ("loiter_circle_h", "racetrack_h", "figure8_h", "cloverleaf_h", "lawnmower_h")
-VERTICAL = ("vertical_climb", "spiral_ascent", "figure8_3d", "lawnmower_scan")
-HOVER = "hover"
