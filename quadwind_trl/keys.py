@@ -1,20 +1,41 @@
-"""Tensordict keys the transforms write and the policy observation layout, in one place.
+"""Tensordict keys and the policy observation layout, in one place.
 
-The policy's ``observation`` is a flat vector whose channels are named by
+The sensors' measurements are the env observation :data:`MEAS_KEY`, a sub-tensordict of named
+entries, one per instrument of :data:`quadwind_trl.envs.sensors.INSTRUMENTS` (``("meas",
+"attitude")``, ...). The policy's ``observation`` is a flat vector whose channels are named by
 :data:`OBSERVATION_CHANNELS`; code that needs a channel looks its index up by name
 (:func:`observation_index`), never by a number, so the layout can change in this file only.
-The kinematic block reuses the estimator features' channel definitions.
+The kinematic block (:func:`kinematic_channels`) is shared with the estimator features, which
+import it from here. A leaf module: it imports nothing from the package, so every layer can use it.
 """
 from __future__ import annotations
 
-from .estimator.features import kinematic_channels
+from typing import Literal
 
+#: the held sensor measurements: a sub-tensordict with one entry per sensor instrument
+MEAS_KEY = "meas"
 #: (north, east) mean-wind estimate, m/s, written by ``WindEstimate``
 WIND_KEY = "wind_hat"
 #: the policy input vector written by ``PolicyObservation``
 OBSERVATION_KEY = "observation"
 #: the true turbulence-free mean wind at the vehicle (ENU), the oracle's source
 MEAN_WIND_KEY = ("truth", "mean_wind")
+
+YawMode = Literal["ref_relative", "wrapped"]
+
+
+def kinematic_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
+    """The 13 controller-agnostic kinematic channels of sensor17 (the estimator features' first
+    block, shared by both schemas, and the policy observation's)."""
+    yaw = "yaw_err" if yaw_mode == "ref_relative" else "yaw"
+    return (
+        "alt",
+        "vel_E", "vel_N", "vel_U",
+        "acc_bx", "acc_by", "acc_bz",
+        "roll", "pitch", yaw,
+        "rate_p", "rate_q", "rate_r",
+    )  # fmt: skip
+
 
 #: the policy observation, channel by channel (heading frame: forward, left; see transforms.observation)
 OBSERVATION_CHANNELS: tuple[str, ...] = ("alt", "vel_fwd", "vel_left") + kinematic_channels("ref_relative")[3:] + (

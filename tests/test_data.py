@@ -34,8 +34,10 @@ from quadwind_trl.data import (
 )
 from quadwind_trl.data.windows import sample_stats, t_safety_s
 from quadwind_trl.envs import RegimeRanges
+from quadwind_trl.envs.sensors import sensor_widths
 from quadwind_trl.envs.trajectories import trajectory_ids
 from quadwind_trl.estimator.features import FeatureExtractor
+from quadwind_trl.keys import MEAS_KEY
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -67,7 +69,8 @@ def test_dataset_layout(tiny):
     assert data.batch_size == (n,) and manifest["num_flights"] == n
     rec = data["record"]
     assert rec.batch_size[0] == n and rec.batch_size[1] == manifest["record_length"]
-    assert rec["meas"].shape[-1] == 16 and rec["mean_wind_ne"].shape[-1] == 2
+    assert {k: v.shape[-1] for k, v in rec[MEAS_KEY].items()} == sensor_widths()  # the sensors' named entries
+    assert rec["mean_wind_ne"].shape[-1] == 2
     assert all(isinstance(v, MemoryMappedTensor) for v in data.values(True, True))  # lazy, on disk
     # valid samples are a prefix of the stored length; steps are every 10th control step
     t_idx = torch.arange(rec.batch_size[1])

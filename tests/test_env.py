@@ -19,9 +19,11 @@ from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.envs import HORIZONTAL, VERTICAL, QuadWindEnv, make_scenarios, trajectory_names
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
+from quadwind_trl.envs.sensors import pack_channels
 from quadwind_trl.envs.simulator import QuadSimulator
 from quadwind_trl.envs.task import TrackingTask
 from quadwind_trl.envs.vehicle import VehicleParams, rotor_thrust_ratio
+from quadwind_trl.keys import MEAS_KEY
 
 from conftest import quiet_config, short_trajectories, windy_config
 
@@ -131,12 +133,12 @@ def test_zero_residual_policy_reproduces_pd_bit_for_bit():
         turb_intensity=0.2, turb_seed=torch.tensor([1, 2, 3]), sensor_seed=torch.tensor([4, 5, 6]), start_step=-1,
     )
     pd = fly(env, sc)
-    head = nn.Linear(16, 4)
+    head = nn.Linear(3, 4)
     nn.init.zeros_(head.weight)
     nn.init.zeros_(head.bias)
-    policy = TensorDictModule(nn.Sequential(head, nn.Tanh()), in_keys=["meas"], out_keys=["action"])
+    policy = TensorDictModule(nn.Sequential(head, nn.Tanh()), in_keys=[(MEAS_KEY, "attitude")], out_keys=["action"])
     rl = fly(env, sc, policy=policy)
-    assert torch.equal(pd.log["meas"], rl.log["meas"])
+    assert torch.equal(pack_channels(pd.log[MEAS_KEY]), pack_channels(rl.log[MEAS_KEY]))
     assert torch.equal(pd.log["truth", "pos"], rl.log["truth", "pos"])
     assert torch.equal(pd.rmse_xy, rl.rmse_xy)
     # and a non-zero policy does change the flight
@@ -151,7 +153,7 @@ def _stepped(env: QuadWindEnv, scenarios, steps: int, action_fn=None):
     for k in range(steps):
         td["action"] = torch.zeros(env.batch_size[0], 4) if action_fn is None else action_fn(k)
         td = env.step(td)["next"]
-        record.append(td.select("meas", ("truth", "pos"), ("truth", "wind"), "step").clone())
+        record.append(td.select(MEAS_KEY, ("truth", "pos"), ("truth", "wind"), "step").clone())
     return torch.stack(record, 1)
 
 
@@ -171,7 +173,7 @@ def test_replay_is_independent_of_batch_and_row():
     # bitwise: no BLAS and no layout-dependent kernel (atan2, pow) in the step
     assert torch.equal(batched["truth", "pos"], alone["truth", "pos"])
     assert torch.equal(batched["truth", "wind"], alone["truth", "wind"])
-    assert torch.equal(batched["meas"], alone["meas"])
+    assert torch.equal(pack_channels(batched[MEAS_KEY]), pack_channels(alone[MEAS_KEY]))
 
 
 def test_replay_under_another_controller_sees_the_same_world():
@@ -213,13 +215,13 @@ def test_held_action_is_the_same_flight_sampled_every_hold_steps():
     for k in range(300):
         td["action"] = actions[k // 10]
         td = fine_env.step(td)["next"]
-        fine.append(td.select(("truth", "pos"), "meas", "step").clone())
+        fine.append(td.select(("truth", "pos"), MEAS_KEY, "step").clone())
         rewards.append(td["reward"].clone())
     fine = torch.stack(fine, 1)
     held = _stepped(QuadWindEnv(held_cfg, batch_size=[2]), spec, 30, action_fn=lambda k: actions[k])
     assert torch.equal(held["step"], fine["step"][:, 9::10])
     assert torch.equal(held["truth", "pos"], fine["truth", "pos"][:, 9::10])
-    assert torch.equal(held["meas"], fine["meas"][:, 9::10])
+    assert torch.equal(pack_channels(held[MEAS_KEY]), pack_channels(fine[MEAS_KEY][:, 9::10]))
     env = QuadWindEnv(held_cfg, batch_size=[2])
     td = env.reset(scenario=spec)
     td["action"] = actions[0]
@@ -444,4 +446,4 @@ def test_compiled_step_matches_eager():
     eager = _stepped(QuadWindEnv(cfg, batch_size=[2]), sc, 60)
     compiled = _stepped(QuadWindEnv(cfg, batch_size=[2], compile_step=True), sc, 60)
     torch.testing.assert_close(compiled["truth", "pos"], eager["truth", "pos"], rtol=1e-5, atol=1e-4)
-    torch.testing.assert_close(compiled["meas"], eager["meas"], rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(pack_channels(compiled[MEAS_KEY]), pack_channels(eager[MEAS_KEY]), rtol=1e-5, atol=1e-4)

@@ -6,34 +6,37 @@ import math
 
 import pytest
 import torch
+from tensordict import TensorDict
 
 from quadwind_trl.config import EnvConfig, SensorConfig, TurbulenceConfig
 from quadwind_trl.estimator.features import (
     HORIZONTAL_CHANNELS,
     RAW_RECORD_KEYS,
-    RAW_RECORD_SIZES,
     TRAILING_SIGNALS,
     VERTICAL_CHANNELS,
     FeatureExtractor,
     make_extractor,
+    raw_record_template,
     rotation_from_euler,
     wrap_angle,
 )
 from quadwind_trl.envs import QuadWindEnv, make_scenarios
 from quadwind_trl.envs.rotations import quat_from_euler, quat_to_rotmat
-from quadwind_trl.envs.sensors import SENSOR_CHANNELS
+from quadwind_trl.envs.sensors import CHANNEL_NAMES, unpack_channels
+from quadwind_trl.keys import MEAS_KEY
 
-M = {name: i for i, name in enumerate(SENSOR_CHANNELS)}
 MASS = 2.59
 G = 9.81
 
 
-def random_record(n: int, t_len: int, seed: int = 0) -> dict[str, torch.Tensor]:
-    """Plausible-range random raw records ``{key: [n, T, ...]}`` (values need not be physical)."""
+def random_record(n: int, t_len: int, seed: int = 0) -> dict[str, torch.Tensor | TensorDict]:
+    """Plausible-range random raw records ``{key: [n, T, ...]}``, the sensors' named entries
+    nested under ``"meas"`` (values need not be physical)."""
     gen = torch.Generator().manual_seed(seed)
-    rec = {k: torch.randn(n, t_len, RAW_RECORD_SIZES[k], generator=gen) for k in RAW_RECORD_KEYS}
-    rec["meas"][..., M["yaw"]] = wrap_angle(4 * rec["meas"][..., M["yaw"]])
-    rec["meas"][..., M["accel_z"]] += G
+    rec = dict(raw_record_template(n, t_len).apply(lambda z: torch.randn(z.shape, generator=gen)).items())
+    attitude, accel = rec[MEAS_KEY]["attitude"], rec[MEAS_KEY]["accel"]
+    attitude[..., 2] = wrap_angle(4 * attitude[..., 2])  # yaw
+    accel[..., 2] += G  # body z
     rec["cmd_wrench"][..., 0] = MASS * G + rec["cmd_wrench"][..., 0]
     rec["ref_pos"] = torch.cumsum(rec["ref_pos"], 1)
     rec["ref_yaw"] = torch.cumsum(0.3 * rec["ref_yaw"], 1)  # unwrapped, drifts past +-pi
@@ -131,8 +134,9 @@ def test_step_is_pure():
     for k, v in snapshot.items():
         if torch.is_tensor(v):
             assert torch.equal(state[k], v)
-    for k in record:
-        assert torch.equal(record[k], kept[k])
+    kept = TensorDict(kept)
+    for k, v in TensorDict(record).items(include_nested=True, leaves_only=True):  # the sensors' nested entries too
+        assert torch.equal(v, kept[k]), k
     assert new is not state
 
 
@@ -157,13 +161,13 @@ def hover_tick(roll, pitch, yaw, drag_world=(0.0, 0.0, 0.0), yaw_ref=None) -> di
     thrust = MASS * G / b3[..., 2]
     force_world = thrust[:, None] * b3 + drag
     sf_body = (rot.transpose(-1, -2) @ force_world.unsqueeze(-1)).squeeze(-1) / MASS
-    meas = torch.zeros(n, 16)
-    meas[:, M["roll"]], meas[:, M["pitch"]], meas[:, M["yaw"]] = roll, pitch, yaw
-    meas[:, M["accel_x"] : M["accel_z"] + 1] = sf_body
+    meas = unpack_channels(torch.zeros(n, len(CHANNEL_NAMES)))
+    meas["attitude"] = torch.stack((roll, pitch, yaw), -1)
+    meas["accel"] = sf_body
     cmd = torch.zeros(n, 4)
     cmd[:, 0] = thrust
     return {
-        "meas": meas,
+        MEAS_KEY: meas,
         "cmd_wrench": cmd,
         "tilt_cmd": torch.zeros(n, 1),
         "tilt_saturated": torch.zeros(n, 1, dtype=torch.bool),
@@ -229,7 +233,7 @@ def test_trailing_means_of_a_ramp():
         expect = torch.where(k < w, k / 2, k - (w - 1) / 2)
         assert torch.allclose(f[:, ch[f"avg{w}_u_T"]].double(), expect, atol=1e-4, rtol=0), w
     # a constant signal's trailing mean is that constant at every tick, incl. the first
-    rec["meas"][..., M["gps_vy"]] = 4.25
+    rec[MEAS_KEY]["gps_vel"][..., 1] = 4.25  # north
     f = fx.scan(rec)[0]
     assert torch.equal(f[:, ch["avg100_vel_N"]], torch.full((t_len,), 4.25))
     assert torch.equal(f[:, ch["avg300_vel_N"]], torch.full((t_len,), 4.25))
@@ -247,11 +251,11 @@ def test_vertical_reference_differences_and_errors():
     assert torch.allclose(f[1:, ch["vx_ref"]], torch.full((t_len - 1,), 2.0), atol=1e-4)
     assert torch.allclose(f[2:, ch["az_ref"]], torch.full((t_len - 2,), 1.5), atol=2e-3)
     assert torch.allclose(f[1:, ch["vz_ref"]], 1.5 * (t[1:] - 0.05), atol=1e-3)  # backward difference
-    meas = rec["meas"][0]
-    assert torch.equal(f[:, ch["dX"]], meas[:, M["gps_x"]] - rec["ref_pos"][0, :, 0])
-    assert torch.equal(f[:, ch["dZ"]], meas[:, M["baro_alt"]] - rec["ref_pos"][0, :, 2])
-    assert torch.equal(f[:, ch["alt"]], meas[:, M["baro_alt"]])
-    assert torch.equal(f[:, ch["vel_N"]], meas[:, M["gps_vy"]])
+    meas = rec[MEAS_KEY][0]
+    assert torch.equal(f[:, ch["dX"]], meas["gps_pos"][:, 0] - rec["ref_pos"][0, :, 0])
+    assert torch.equal(f[:, ch["dZ"]], meas["baro_alt"][:, 0] - rec["ref_pos"][0, :, 2])
+    assert torch.equal(f[:, ch["alt"]], meas["baro_alt"][:, 0])
+    assert torch.equal(f[:, ch["vel_N"]], meas["gps_vel"][:, 1])
 
 
 def test_real_hover_in_still_air_has_no_aero_residual():

@@ -10,7 +10,7 @@ import torch
 
 from quadwind_trl.config import LEGACY_SENSORS, SENSOR_PRESETS, SensorChannelConfig, SensorConfig, TimingConfig
 from quadwind_trl.envs.counter_rng import hash_bits, hash_normal, hash_uniform
-from quadwind_trl.envs.sensors import NUM_SENSOR_CHANNELS, SENSOR_CHANNELS, SensorSuite
+from quadwind_trl.envs.sensors import CHANNEL_NAMES, SensorSuite, pack_channels, unpack_channels
 
 DT = TimingConfig().control_dt_s
 CFG = SensorConfig()
@@ -22,9 +22,25 @@ NOISE = torch.tensor([c.noise_std for c in PER_CHANNEL], dtype=torch.float64)
 # 200 Hz take two samples per control step (one per step where the suite is driven alone)
 PERIOD = torch.tensor([10] * 6 + [4] + [2] * 3 + [1] * 6)
 IMU_SAMPLES = torch.tensor([1] * 10 + [2] * 6)
-YAW = SENSOR_CHANNELS.index("yaw")
+# the suite's channels packed (pack_channels) so the statistics run over all of them at once
+NUM_CHANNELS = len(CHANNEL_NAMES)
+YAW = CHANNEL_NAMES.index("attitude.yaw")
+IMU_NAMES = ("gyro", "accel")
+IMU = slice(CHANNEL_NAMES.index("gyro.p"), CHANNEL_NAMES.index("accel.z") + 1)
 GROUPS = {"gps_pos": [0, 1, 2], "gps_vel": [3, 4, 5], "baro": [6], "roll_pitch": [7, 8], "yaw": [9], "gyro": [10, 11, 12],
           "accel": [13, 14, 15]}  # fmt: skip
+assert [CHANNEL_NAMES[c] for c in GROUPS["yaw"] + GROUPS["gyro"]] == ["attitude.yaw", "gyro.p", "gyro.q", "gyro.r"]
+
+
+def measure(suite: SensorSuite, params, state, truth: torch.Tensor, k: int, first: bool = False,
+            imu_truth_sub: torch.Tensor | None = None) -> tuple[torch.Tensor, object]:
+    """``suite.measure`` on packed truth ``[n, 16]`` (and IMU sub-samples ``[n, m - 1, 6]``),
+    returning the named measurements packed."""
+    n = truth.shape[0]
+    sub = None if imu_truth_sub is None else unpack_channels(imu_truth_sub, IMU_NAMES)
+    meas, state = suite.measure(params, state, unpack_channels(truth), torch.full((n,), k),
+                                force=torch.ones(n, 1, dtype=torch.bool) if first else None, imu_truth_sub=sub)
+    return pack_channels(meas), state
 
 
 def wrap(angle: torch.Tensor) -> torch.Tensor:
@@ -32,7 +48,7 @@ def wrap(angle: torch.Tensor) -> torch.Tensor:
 
 
 def random_truth(n: int, gen: torch.Generator) -> torch.Tensor:
-    truth = torch.randn(n, NUM_SENSOR_CHANNELS, generator=gen) * 3.0
+    truth = torch.randn(n, NUM_CHANNELS, generator=gen) * 3.0
     truth[:, YAW] = (torch.rand(n, generator=gen) * 2 - 1) * 3.1
     return truth
 
@@ -68,7 +84,7 @@ def test_every_preset_is_bounded_except_the_legacy_walk():
 
 
 def test_rates_that_do_not_divide_the_control_rate_are_refused():
-    with pytest.raises(ValueError, match="gps_x"):
+    with pytest.raises(ValueError, match=r"gps_pos\.x \(SensorConfig\.gps_pos\)"):
         SensorSuite(replace(CFG, gps_pos=SensorChannelConfig(30.0, 0.7, 0.05)), DT)
     with pytest.raises(ValueError, match="baro_alt"):
         SensorSuite(replace(CFG, baro_alt=SensorChannelConfig(200.0, 0.8)), DT)
@@ -76,8 +92,8 @@ def test_rates_that_do_not_divide_the_control_rate_are_refused():
 
 def test_disabled_sensors_return_the_truth():
     suite = SensorSuite(replace(CFG, enabled=False), DT)
-    truth = torch.randn(5, NUM_SENSOR_CHANNELS)
-    meas, _ = suite.measure(*suite.init(torch.arange(5)), truth, torch.zeros(5, dtype=torch.int64))
+    truth = torch.randn(5, NUM_CHANNELS)
+    meas, _ = measure(suite, *suite.init(torch.arange(5)), truth, 0)
     assert torch.equal(meas, truth)
 
 
@@ -90,17 +106,17 @@ def test_white_noise_std_per_channel_with_bias_disabled():
     n = 1024
     params, st = suite.init(torch.arange(n) + 10_000)
     gen = torch.Generator().manual_seed(0)
-    sq, count = torch.zeros(NUM_SENSOR_CHANNELS, dtype=torch.float64), torch.zeros(NUM_SENSOR_CHANNELS)
+    sq, count = torch.zeros(NUM_CHANNELS, dtype=torch.float64), torch.zeros(NUM_CHANNELS)
     for k in range(100):
         truth = random_truth(n, gen)
-        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
+        meas, st = measure(suite, params, st, truth, k, first=k == 0)
         err = meas - truth
         err[:, YAW] = wrap(err[:, YAW])
         tick = (k % PERIOD) == 0
         sq += torch.where(tick, (err.double() ** 2).sum(0), 0.0)
         count += tick * n
     std = (sq / count).sqrt()
-    assert ((std / NOISE - 1).abs() < 0.05).all(), dict(zip(SENSOR_CHANNELS, (std / NOISE).tolist()))
+    assert ((std / NOISE - 1).abs() < 0.05).all(), dict(zip(CHANNEL_NAMES, (std / NOISE).tolist()))
 
 
 def _long_run(cfg: SensorConfig, n: int, steps: int = 800):
@@ -111,7 +127,7 @@ def _long_run(cfg: SensorConfig, n: int, steps: int = 800):
     for k in range(steps):
         truth = random_truth(n, gen)
         before = st["bias"]
-        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None)
+        meas, st = measure(suite, params, st, truth, k, first=k == 0)
         if k < 200:
             err = meas - truth - st["bias"]
             err[:, YAW] = wrap(err[:, YAW])
@@ -139,7 +155,7 @@ def long_walk():
 def test_noise_std_per_channel_with_the_bias_removed(long_run):
     noise, _, _ = long_run
     std = noise.nan_to_num().pow(2).sum((0, 1)).div((~noise.isnan()).sum((0, 1))).sqrt()
-    assert ((std / NOISE - 1).abs() < 0.05).all(), dict(zip(SENSOR_CHANNELS, (std / NOISE).tolist()))
+    assert ((std / NOISE - 1).abs() < 0.05).all(), dict(zip(CHANNEL_NAMES, (std / NOISE).tolist()))
 
 
 def test_noise_is_white_and_uncorrelated_across_channels_and_with_the_bias(long_run):
@@ -148,14 +164,14 @@ def test_noise_is_white_and_uncorrelated_across_channels_and_with_the_bias(long_
     for c, p in enumerate(PERIOD.tolist()):
         ticks = z[:, ::p, c]  # consecutive samples of one instrument
         lag1 = (ticks[:, 1:] * ticks[:, :-1]).mean() / ticks.pow(2).mean()
-        assert abs(lag1) < 0.03, (SENSOR_CHANNELS[c], lag1.item())
-    common = z[:, ::20].reshape(-1, NUM_SENSOR_CHANNELS)  # steps where every channel ticks (lcm 20)
+        assert abs(lag1) < 0.03, (CHANNEL_NAMES[c], lag1.item())
+    common = z[:, ::20].reshape(-1, NUM_CHANNELS)  # steps where every channel ticks (lcm 20)
     corr = torch.corrcoef(common.T)
-    assert (corr - torch.eye(NUM_SENSOR_CHANNELS, dtype=torch.float64)).abs().max() < 0.04
+    assert (corr - torch.eye(NUM_CHANNELS, dtype=torch.float64)).abs().max() < 0.04
     # the white noise and the bias step drawn at the same sample are independent
     for c, p in enumerate(PERIOD.tolist()):
         pair = torch.stack((noise[:, ::p, c].flatten(), increments[:, ::p, c].flatten()))
-        assert abs(torch.corrcoef(pair)[0, 1]) < 0.03, SENSOR_CHANNELS[c]
+        assert abs(torch.corrcoef(pair)[0, 1]) < 0.03, CHANNEL_NAMES[c]
 
 
 def test_legacy_bias_random_walk_variance_grows_linearly_in_time(long_walk):
@@ -186,11 +202,10 @@ def test_gauss_markov_bias_has_its_stationary_std_and_correlation_time():
     sigma = suite.bias_std.double()
     n, lag, steps = 4096, 100, 600
     params, st = suite.init(torch.arange(n) * 11 + 1)
-    truth, imu_sub = torch.zeros(n, NUM_SENSOR_CHANNELS), torch.zeros(n, 1, 6)  # the IMU's 5 ms sample too
+    truth, imu_sub = torch.zeros(n, NUM_CHANNELS), torch.zeros(n, 1, 6)  # the IMU's 5 ms sample too
     biases = []
     for k in range(steps):
-        first = torch.ones(n, 1, dtype=torch.bool) if k == 0 else None
-        _, st = suite.measure(params, st, truth, torch.full((n,), k), force=first, imu_truth_sub=None if k == 0 else imu_sub)
+        _, st = measure(suite, params, st, truth, k, first=k == 0, imu_truth_sub=None if k == 0 else imu_sub)
         biases.append(st["bias"].double())
     b = torch.stack(biases, 1) / sigma  # [n, steps, 16], unit variance if stationary
     for t in (0, steps // 2, steps - 1):
@@ -198,7 +213,7 @@ def test_gauss_markov_bias_has_its_stationary_std_and_correlation_time():
         assert ((std - 1).abs() < 0.10).all(), (t, std)
     rho = (b[:, lag:] * b[:, :-lag]).mean((0, 1)) / b.pow(2).mean((0, 1))
     tau_hat = -(lag * DT) / rho.log()
-    assert ((tau_hat / tau - 1).abs() < 0.10).all(), dict(zip(SENSOR_CHANNELS, tau_hat.tolist()))
+    assert ((tau_hat / tau - 1).abs() < 0.10).all(), dict(zip(CHANNEL_NAMES, tau_hat.tolist()))
 
 
 def test_the_default_biases_start_from_their_stationary_distribution():
@@ -221,16 +236,16 @@ def test_the_imu_delivers_a_new_sample_every_5_ms():
     gen = torch.Generator().manual_seed(4)
     mid_err, end_err = [], []
     for k in range(40):
-        truth, mid_truth = random_truth(n, gen), random_truth(n, gen)[:, 10:16]
+        truth, mid_truth = random_truth(n, gen), random_truth(n, gen)[:, IMU]
         sub = None if k == 0 else mid_truth.unsqueeze(-2)
-        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == 0 else None,
-                                 imu_truth_sub=sub)
+        meas, st = measure(suite, params, st, truth, k, first=k == 0, imu_truth_sub=sub)
         if k:
-            mid = 2 * st["imu_mean"] - meas[:, 10:16]  # the 5 ms sample
+            mean = torch.cat([suite.imu_mean(st, name) for name in IMU_NAMES], -1)
+            mid = 2 * mean - meas[:, IMU]  # the 5 ms sample
             mid_err.append(mid - mid_truth)
-            end_err.append(meas[:, 10:16] - truth[:, 10:16])
+            end_err.append(meas[:, IMU] - truth[:, IMU])
     mid_err, end_err = torch.cat(mid_err).double(), torch.cat(end_err).double()
-    noise = NOISE[10:16]
+    noise = NOISE[IMU]
     assert ((mid_err.std(0) / noise - 1).abs() < 0.05).all() and ((end_err.std(0) / noise - 1).abs() < 0.05).all()
     corr = torch.corrcoef(torch.cat((mid_err, end_err), 1).T)[:6, 6:].diagonal()
     assert (corr.abs() < 0.03).all(), corr  # independent draws: two samples, not one held twice
@@ -244,7 +259,7 @@ def test_values_change_only_at_each_sensors_rate_and_hold_in_between():
     prev, sampled_truth = None, None
     for k in range(first, first + 60):
         truth = random_truth(n, gen)
-        meas, st = suite.measure(params, st, truth, torch.full((n,), k), force=torch.ones(n, 1, dtype=torch.bool) if k == first else None)
+        meas, st = measure(suite, params, st, truth, k, first=k == first)
         tick = ((k % PERIOD) == 0) | (k == first)
         if prev is not None:
             changed = (meas != prev).all(0)
@@ -272,8 +287,7 @@ def test_one_seed_replays_identically_alone_or_in_a_batch():
         try:
             (params, st), out = suite.init(seeds[index]), []
             for k, truth in enumerate(truths):
-                force = torch.ones(len(index), 1, dtype=torch.bool) if k == 0 else None
-                meas, st = suite.measure(params, st, truth[index], torch.full((len(index),), k), force=force)
+                meas, st = measure(suite, params, st, truth[index], k, first=k == 0)
                 out.append(torch.cat((meas, st["bias"]), -1))
         finally:
             torch.set_num_threads(old)
@@ -336,15 +350,15 @@ def test_height_reference_decides_whether_the_baro_offset_reaches_the_altitude(r
     from quadwind_trl.config import NavigationConfig
     from quadwind_trl.envs.navigation import NavigationParams, init_navigation, update_navigation
 
-    meas = torch.zeros(1, NUM_SENSOR_CHANNELS)
-    meas[:, 2] = 100.0  # GNSS height
-    meas[:, 6] = 100.15  # barometer, biased
-    meas[:, 15] = 9.81  # accelerometer at rest (the filter removes the same g)
+    meas = unpack_channels(torch.zeros(1, NUM_CHANNELS))
+    meas["gps_pos"][:, 2] = 100.0  # GNSS height
+    meas["baro_alt"][:, 0] = 100.15  # barometer, biased
+    meas["accel"][:, 2] = 9.81  # accelerometer at rest (the filter removes the same g)
     params = NavigationParams.from_config(NavigationConfig(height_reference=reference))
     nav = init_navigation(meas)
     for step in range(1, 24001):
         gps, baro = torch.tensor([[step % 10 == 0]]), torch.tensor([[step % 4 == 0]])
-        nav = update_navigation(nav, meas, meas[:, 13:16], gps, baro, params, DT)
+        nav = update_navigation(nav, meas, meas["accel"], gps, baro, params, DT)
     error = nav["pos"][0, 2].item() - 100.0
     if reference == "baro":
         assert abs(error - 0.15) < 1e-3 and nav["baro_offset"].abs().max().item() == 0.0

@@ -17,13 +17,14 @@ from quadwind_trl.config import EnvConfig, TrajectoryConfig
 from quadwind_trl.estimator.features import make_extractor
 from quadwind_trl.envs import QuadWindEnv, ScenarioSampler, make_scenarios
 from quadwind_trl.envs.runner import fly
+from quadwind_trl.envs.sensors import pack_channels
 from quadwind_trl.estimator.ema import EMAConfig, ema_scan
-from quadwind_trl.keys import OBSERVATION_CHANNELS, OBSERVATION_DIM, WIND_INDICES
+from quadwind_trl.keys import MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_DIM, WIND_INDICES
 from quadwind_trl.estimator import untrained_estimator
 from quadwind_trl.rl.envs import make_env, vecnorm, wind_estimate
 from quadwind_trl.transforms import EpisodeControl, PolicyObservation, WindEstimate, WindZero
 
-RAW = ("meas", "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
+RAW = (MEAS_KEY, "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
 
 
 def short_config(w_z: float = 1.0) -> EnvConfig:
@@ -262,7 +263,8 @@ def test_raw_observation_matches_sensors_and_features(bundle):
         td = env.step(td)["next"]
     from quadwind_trl.transforms.observation import to_heading_frame
 
-    obs, feats, yaw = td["observation"], latest_features(west), td["meas"][:, 9]
+    obs, feats = td["observation"], latest_features(west)
+    _, _, yaw = td[MEAS_KEY, "attitude"].unbind(-1)
     # step 20 is a tick: the kinematic block is the features', horizontal velocity in the heading frame
     assert torch.equal(obs[:, 0], feats[:, 0]) and torch.equal(obs[:, 3:13], feats[:, 3:13])
     assert torch.equal(obs[:, 1:3], torch.stack(to_heading_frame(feats[:, 1], feats[:, 2], yaw), -1))
@@ -293,7 +295,7 @@ def test_zero_policy_reproduces_pd(bundle):
     env = make_env("horizontal", bundle, 3, config=cfg)
     rl = fly(env, sc, policy=actor)
     assert torch.equal(rl.rmse_xy, pd.rmse_xy) and torch.equal(rl.rmse_z, pd.rmse_z)
-    assert torch.equal(rl.log["meas"], pd.log["meas"])
+    assert torch.equal(pack_channels(rl.log[MEAS_KEY]), pack_channels(pd.log[MEAS_KEY]))
     assert torch.equal(rl.log["ff_wrench"], torch.zeros_like(rl.log["ff_wrench"]))
 
 

@@ -5,7 +5,8 @@ A dataset is one directory::
 
     DIR/
       data/               TensorDict.memmap_ of batch [n] (one row per flight):
-        record/           [n, T] 10 Hz record: raw channels (features.RAW_RECORD_KEYS), "step",
+        record/           [n, T] 10 Hz record: raw channels (features.RAW_RECORD_KEYS; the sensors
+                          as the nested named entries "meas/gps_pos", ...), "step",
                           labels "mean_wind_ne" [2] (north, east), truth "wind" [3] (total air
                           velocity, ENU), "pos" [3] (true position, ENU), "valid" (bool)
         scenario/         [n] every SCENARIO_FIELDS entry (replays the flight exactly)
@@ -47,12 +48,14 @@ from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
 from ..envs.scenarios import SCENARIO_FIELDS, RegimeRanges, cross_with_trajectories, sample_regimes
 from ..envs.trajectories import HORIZONTAL, VERTICAL, trajectory_names
-from ..estimator.features import RAW_RECORD_KEYS, RAW_RECORD_SIZES
+from ..estimator.features import RAW_RECORD_KEYS, raw_record_template
 
 Regime = Literal["horizontal", "vertical"]
 
 COMPLETE_MARKER = "COMPLETE"
-FORMAT_VERSION = 1
+# 2: the sensors stored as named entries under record/meas (format 1, a packed [16] "meas", is
+# not read: regenerate)
+FORMAT_VERSION = 2
 
 #: what the runner logs (env observation keys) -> the name stored in ``record``
 LOG_KEYS: tuple = RAW_RECORD_KEYS + ("step", ("truth", "pos"), ("truth", "wind"), ("truth", "mean_wind"))
@@ -118,19 +121,19 @@ def _record_template(n: int, t_len: int) -> TensorDict:
     def z(*shape, dtype=torch.float32):
         return torch.zeros((1,) * len(shape), dtype=dtype).expand(*shape)
 
-    rec = {k: z(n, t_len, RAW_RECORD_SIZES[k]) for k in RAW_RECORD_KEYS}
-    rec["tilt_saturated"] = z(n, t_len, 1, dtype=torch.bool)
-    rec.update(
-        step=z(n, t_len, 1, dtype=torch.int64),
-        pos=z(n, t_len, 3),
-        wind=z(n, t_len, 3),
-        mean_wind_ne=z(n, t_len, 2),
-        valid=z(n, t_len, dtype=torch.bool),
+    rec = raw_record_template(n, t_len).update(
+        dict(
+            step=z(n, t_len, 1, dtype=torch.int64),
+            pos=z(n, t_len, 3),
+            wind=z(n, t_len, 3),
+            mean_wind_ne=z(n, t_len, 2),
+            valid=z(n, t_len, dtype=torch.bool),
+        )
     )
     scenario = {k: z(n, dtype=dtype) for k, (dtype, _) in SCENARIO_FIELDS.items()}
     return TensorDict(
         {
-            "record": TensorDict(rec, batch_size=[n, t_len]),
+            "record": rec,
             "scenario": TensorDict(scenario, batch_size=[n]),
             "case_id": z(n, dtype=torch.int64),
             "traj_id": z(n, dtype=torch.int64),

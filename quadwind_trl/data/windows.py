@@ -232,7 +232,7 @@ def compute_features(
             starts = tqdm(starts, desc=f"{extractor.schema} features", unit="chunk")
         for i in starts:
             rows = slice(i, min(i + chunk, n))
-            raw = {k: torch.as_tensor(record.get(k)[rows]) for k in extractor.raw_keys}
+            raw = record.select(*extractor.raw_keys)[rows].apply(torch.as_tensor)  # the sensors nested under "meas"
             target[rows] = extractor.scan(raw)
     except BaseException:
         if out is not None:

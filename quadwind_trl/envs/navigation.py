@@ -37,17 +37,18 @@ class NavigationParams:
                    cfg.gnss_height_gain, cfg.baro_offset_gain)
 
 
-def init_navigation(meas: Tensor) -> TensorDict:
-    """The solution read straight off the measurements (the filter's start, and the
-    ``feedback="sensors"`` autopilot): GPS horizontal position, baro altitude, GPS velocity, and a
-    zero barometer offset (its expected value)."""
-    return TensorDict(pos=torch.cat((meas[..., 0:2], meas[..., 6:7]), -1), vel=meas[..., 3:6].clone(),
-                      baro_offset=torch.zeros_like(meas[..., 6:7]), batch_size=meas.shape[:-1])
+def init_navigation(meas: TensorDict) -> TensorDict:
+    """The solution read straight off the measurements (``meas``: the sensors' named entries; the
+    filter's start, and the ``feedback="sensors"`` autopilot): GPS horizontal position, baro
+    altitude, GPS velocity, and a zero barometer offset (its expected value)."""
+    baro = meas["baro_alt"]
+    return TensorDict(pos=torch.cat((meas["gps_pos"][..., :2], baro), -1), vel=meas["gps_vel"].clone(),
+                      baro_offset=torch.zeros_like(baro), batch_size=meas.batch_size)
 
 
 def update_navigation(
     nav: TensorDict,
-    meas: Tensor,
+    meas: TensorDict,
     accel_mean: Tensor,
     gps_tick: Tensor,
     baro_tick: Tensor,
@@ -55,19 +56,20 @@ def update_navigation(
     dt: float,
 ) -> TensorDict:
     """One control step: predict over ``dt`` with ``accel_mean`` ``[N, 3]`` (the body-frame
-    accelerometer samples of the step, averaged), then correct with the sensors that ticked
-    (bool ``[N, 1]`` masks)."""
-    rot = quat_to_rotmat(quat_from_euler(*meas[..., 7:10].unbind(-1)))
-    acc = rotate(rot, accel_mean) - meas.new_tensor([0.0, 0.0, GRAVITY_M_S2])
+    accelerometer samples of the step, averaged), then correct with the sensors (``meas``: their
+    named entries) that ticked (bool ``[N, 1]`` masks)."""
+    gps_pos, gps_vel, baro = meas["gps_pos"], meas["gps_vel"], meas["baro_alt"]
+    rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
+    acc = rotate(rot, accel_mean) - accel_mean.new_tensor([0.0, 0.0, GRAVITY_M_S2])
     vel = nav["vel"] + dt * acc
     pos = nav["pos"] + dt * vel
-    pos_xy = torch.where(gps_tick, pos[..., :2] + p.pos_gain * (meas[..., 0:2] - pos[..., :2]), pos[..., :2])
-    baro, pos_z, offset = meas[..., 6:7], pos[..., 2:], nav["baro_offset"]
+    pos_xy = torch.where(gps_tick, pos[..., :2] + p.pos_gain * (gps_pos[..., :2] - pos[..., :2]), pos[..., :2])
+    pos_z, offset = pos[..., 2:], nav["baro_offset"]
     if p.gnss_height:
         offset = torch.where(baro_tick, offset + p.baro_offset_gain * (baro - pos_z - offset), offset)
         pos_z = torch.where(baro_tick, pos_z + p.alt_gain * (baro - offset - pos_z), pos_z)
-        pos_z = torch.where(gps_tick, pos_z + p.gnss_height_gain * (meas[..., 2:3] - pos_z), pos_z)
+        pos_z = torch.where(gps_tick, pos_z + p.gnss_height_gain * (gps_pos[..., 2:] - pos_z), pos_z)
     else:
         pos_z = torch.where(baro_tick, pos_z + p.alt_gain * (baro - pos_z), pos_z)
-    vel = torch.where(gps_tick, vel + p.vel_gain * (meas[..., 3:6] - vel), vel)
+    vel = torch.where(gps_tick, vel + p.vel_gain * (gps_vel - vel), vel)
     return TensorDict(pos=torch.cat((pos_xy, pos_z), -1), vel=vel, baro_offset=offset, batch_size=nav.batch_size)

@@ -10,9 +10,10 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
+from ..keys import MEAS_KEY
 from ..validation import check_action, validate_scenarios
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios
-from .sensors import NUM_SENSOR_CHANNELS
+from .sensors import INSTRUMENTS
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
 from .trajectories import HORIZONTAL, trajectory_ids
@@ -59,7 +60,10 @@ class QuadWindEnv(EnvBase):
 
     Observations (all batched ``[N, ...]``, frames in :mod:`quadwind_trl.envs`):
 
-    * ``meas`` [16]: the held sensor measurements (``SENSOR_CHANNELS``);
+    * ``meas``: the held sensor measurements, one named entry per instrument
+      (:data:`~quadwind_trl.envs.sensors.INSTRUMENTS`): ``gps_pos``, ``gps_vel`` [3] (ENU, m,
+      m/s), ``baro_alt`` [1] (m), ``attitude`` [3] (roll, pitch, yaw; rad), ``gyro`` [3] (body,
+      rad/s), ``accel`` [3] (body specific force, m/s^2);
     * ``ref_pos``, ``ref_vel``, ``ref_acc`` [3], ``ref_yaw`` [1]: the reference now;
     * ``nav_pos``, ``nav_vel`` [3]: the autopilot's navigation solution that the PD flies on
       (``ControllerConfig.feedback``: the truth, the raw sensors, or the navigation filter);
@@ -118,7 +122,7 @@ class QuadWindEnv(EnvBase):
     def _make_specs(self) -> None:
         n, dev = self.batch_size[0], self.device
         self.observation_spec = Composite(
-            meas=_vec(n, NUM_SENSOR_CHANNELS, dev),
+            {MEAS_KEY: Composite({i.name: _vec(n, i.width, dev) for i in INSTRUMENTS}, shape=(n,), device=dev)},
             ref_pos=_vec(n, 3, dev),
             ref_vel=_vec(n, 3, dev),
             ref_acc=_vec(n, 3, dev),
@@ -210,7 +214,7 @@ class QuadWindEnv(EnvBase):
         body, nav, ref, control = s["body"], s["nav"], s["ref"], s["control"]
         return TensorDict(
             {
-                "meas": s["sensors", "meas"],
+                MEAS_KEY: s["sensors", MEAS_KEY],
                 "ref_pos": ref["pos"],
                 "ref_vel": ref["vel"],
                 "ref_acc": ref["acc"],

@@ -17,6 +17,7 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm.auto import tqdm
 
+from ..keys import MEAS_KEY
 from ..validation import validate_scenarios
 from .quad_env import QuadWindEnv
 
@@ -24,7 +25,7 @@ NestedKey = str | tuple[str, ...]
 AUTO_PROGRESS_DELAY_S = 3.0
 
 DEFAULT_LOG_KEYS: tuple[NestedKey, ...] = (
-    "meas",
+    MEAS_KEY,
     "cmd_wrench",
     "pd_wrench",
     "ff_wrench",

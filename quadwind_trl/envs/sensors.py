@@ -1,59 +1,115 @@
 """The onboard sensor suite: per-instrument rate, white noise and a Gauss-Markov bias.
 
-Sixteen measured channels, packed in this order (``SENSOR_CHANNELS``):
+The instruments are the rows of :data:`INSTRUMENTS`; everything else (the measurement
+entries, their widths, rates, noise and biases, the env's observation spec) derives from it.
+:meth:`SensorSuite.measure` returns the measurements as a TensorDict of named entries, the env's
+``"meas"`` observation (``keys.MEAS_KEY``):
 
-=========  ====  ====================================  =========
-channels   rate  quantity                              frame
-=========  ====  ====================================  =========
-0-2        10    GPS position (m)                      world ENU
-3-5        10    GPS velocity (m/s)                    world ENU
-6          25    barometric altitude (m)               -
-7-9        50    attitude: roll, pitch, yaw (rad)      Z-Y-X Euler
-10-12      200   gyro: body rates (rad/s)              body FLU
-13-15      200   accelerometer: specific force (m/s2)  body FLU
-=========  ====  ====================================  =========
+============  =====  ====  ====================================  ===============================
+entry         width  rate  quantity (``SensorConfig`` field)     frame, unit
+============  =====  ====  ====================================  ===============================
+``gps_pos``   3      10    GPS position (``gps_pos``)            world ENU (x, y, z), m
+``gps_vel``   3      10    GPS velocity (``gps_vel``)            world ENU, m/s
+``baro_alt``  1      25    barometric altitude (``baro_alt``)    height above the ground, m
+``attitude``  3      50    roll, pitch (``attitude_rp``), yaw    Z-Y-X Euler, rad; yaw from east,
+                           (``attitude_yaw``)                    CCW, wrapped to [-pi, pi)
+``gyro``      3      200   body rates (``gyro``)                 body FLU (p, q, r), rad/s
+``accel``     3      200   specific force (``accel``)            body FLU, m/s^2
+============  =====  ====  ====================================  ===============================
 
 An instrument slower than the 100 Hz control rate samples at the control steps ``k`` with
-``k % (100 / f) == 0`` and its value is held in between (zero-order hold). The IMU (gyro and
-accelerometer) may run faster, ``m = f / 100`` samples per control step: the simulator hands
-:meth:`SensorSuite.measure` the body rate and specific force at the physics substeps nearest
-before each intermediate sample instant (at 200 Hz and 500 Hz physics: the 5 ms sample sees the
-4 ms state, 1 ms stale, as an IMU read on the last completed integration step would). Every
-sample gets its own noise and bias step; the held measurement is the latest sample, and the
-navigation filter integrates the mean of the interval's samples (``imu_mean``).
+``k % (100 / f) == 0`` and its value is held in between (zero-order hold). The IMU (the ``imu``
+rows: gyro and accelerometer) may run faster, ``m = f / 100`` samples per control step: the
+simulator hands :meth:`SensorSuite.measure` the body rate and specific force at the physics
+substeps nearest before each intermediate sample instant (at 200 Hz and 500 Hz physics: the 5 ms
+sample sees the 4 ms state, 1 ms stale, as an IMU read on the last completed integration step
+would). Every sample gets its own noise and bias step; the held measurement is the latest
+sample, and the navigation filter integrates the mean of the interval's samples
+(:meth:`SensorSuite.imu_mean`).
 
 Each bias is a first-order Gauss-Markov process, discretised exactly over its sample interval
 ``h``: ``b <- exp(-h / tau) b + sigma sqrt(1 - exp(-2 h / tau)) w``, started from its
 stationary distribution ``N(0, sigma^2)`` (``tau = inf``: a random walk started at zero, the
 ``legacy_walk`` preset). Noise, bias steps and the initial biases come from the counter-based hash
 of ``(sensor_seed, step, channel)``, so an episode's sensor stream is a function of its seed only.
+Internally the suite keeps the channels packed in table order (one vectorised noise and bias
+step); that packing is the channel index of the hash, so the table's row order is part of the
+physics (appending a row changes the draw layout of every channel: a new calibration).
 """
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-from ..config import SensorConfig, SensorChannelConfig
+from ..config import SensorChannelConfig, SensorConfig
 from .counter_rng import hash_normal
 
-SENSOR_CHANNELS = (
-    "gps_x", "gps_y", "gps_z",
-    "gps_vx", "gps_vy", "gps_vz",
-    "baro_alt",
-    "roll", "pitch", "yaw",
-    "gyro_x", "gyro_y", "gyro_z",
-    "accel_x", "accel_y", "accel_z",
+
+@dataclass(frozen=True)
+class Instrument:
+    """One row of the sensor table: a named measurement entry of ``len(components)`` channels."""
+
+    name: str  # the entry's key in the measurement TensorDict
+    components: tuple[str, ...]  # channel names, in the entry's last dimension
+    config: tuple[str, ...]  # the SensorConfig field of each component (rate, noise, bias)
+    frame: str  # frame and unit (documentation)
+    imu: bool = False  # sampled by the IMU: may run faster than the control rate (sub-samples)
+    wrapped: tuple[str, ...] = ()  # angle components wrapped to [-pi, pi)
+
+    @property
+    def width(self) -> int:
+        return len(self.components)
+
+
+def _row(name: str, components: tuple[str, ...], field: str, frame: str, **kw) -> Instrument:
+    """A row whose components all share one ``SensorConfig`` field."""
+    return Instrument(name, components, (field,) * len(components), frame, **kw)
+
+
+#: the instruments, in packed channel order (the hash's channel index: see the module doc)
+INSTRUMENTS: tuple[Instrument, ...] = (
+    _row("gps_pos", ("x", "y", "z"), "gps_pos", "world ENU, m"),
+    _row("gps_vel", ("x", "y", "z"), "gps_vel", "world ENU, m/s"),
+    _row("baro_alt", ("alt",), "baro_alt", "height above the ground, m"),
+    Instrument("attitude", ("roll", "pitch", "yaw"), ("attitude_rp", "attitude_rp", "attitude_yaw"),
+               "Z-Y-X Euler, rad (yaw from east, CCW)", wrapped=("yaw",)),
+    _row("gyro", ("p", "q", "r"), "gyro", "body FLU, rad/s", imu=True),
+    _row("accel", ("x", "y", "z"), "accel", "body FLU specific force, m/s^2", imu=True),
 )  # fmt: skip
-NUM_SENSOR_CHANNELS = len(SENSOR_CHANNELS)
-_YAW = 9
-_IMU = slice(10, 16)
-_NUM_IMU = 6
+SENSOR_NAMES: tuple[str, ...] = tuple(i.name for i in INSTRUMENTS)
+#: the packed channels, ``"entry.component"`` (error messages, per-channel statistics)
+CHANNEL_NAMES: tuple[str, ...] = tuple(f"{i.name}.{c}" for i in INSTRUMENTS for c in i.components)
+_BY_NAME: dict[str, Instrument] = {i.name: i for i in INSTRUMENTS}
+_OFFSET: dict[str, int] = {i.name: sum(j.width for j in INSTRUMENTS[:k]) for k, i in enumerate(INSTRUMENTS)}
+_NUM_CHANNELS = len(CHANNEL_NAMES)
+_IMU_NAMES = tuple(i.name for i in INSTRUMENTS if i.imu)
+# the IMU's channels are one contiguous block: its sub-sample stream draws them as one vector
+_IMU = slice(_OFFSET[_IMU_NAMES[0]], _OFFSET[_IMU_NAMES[-1]] + _BY_NAME[_IMU_NAMES[-1]].width)
+assert _IMU.stop - _IMU.start == sum(_BY_NAME[n].width for n in _IMU_NAMES), "IMU rows must be adjacent in INSTRUMENTS"
+_NUM_IMU = _IMU.stop - _IMU.start
 _STREAM_SENSORS = 201
 _STREAM_IMU_SUBSAMPLES = 202
 _STREAM_INITIAL_BIAS = 203
+
+
+def sensor_widths() -> dict[str, int]:
+    """``{entry: width}`` of the measurement TensorDict, in table order."""
+    return {i.name: i.width for i in INSTRUMENTS}
+
+
+def pack_channels(entries: TensorDict | dict[str, Tensor], names: tuple[str, ...] = SENSOR_NAMES) -> Tensor:
+    """The named entries ``names`` concatenated along the last dimension, in that order."""
+    return torch.cat([entries[name] for name in names], -1)
+
+
+def unpack_channels(packed: Tensor, names: tuple[str, ...] = SENSOR_NAMES) -> TensorDict:
+    """Named entries (views of ``packed``) of channels packed in the order of ``names``."""
+    parts = packed.split([_BY_NAME[name].width for name in names], -1)
+    return TensorDict(dict(zip(names, parts)), batch_size=packed.shape[:-1])
 
 
 def _gauss_markov_step(ch: SensorChannelConfig, h_s: float) -> tuple[float, float]:
@@ -66,32 +122,39 @@ def _gauss_markov_step(ch: SensorChannelConfig, h_s: float) -> tuple[float, floa
 class SensorSuite:
     def __init__(self, cfg: SensorConfig, control_dt_s: float, device: torch.device | str | None = None):
         self.cfg = cfg
-        per_channel: list[SensorChannelConfig] = (
-            [cfg.gps_pos] * 3 + [cfg.gps_vel] * 3 + [cfg.baro_alt]
-            + [cfg.attitude_rp] * 2 + [cfg.attitude_yaw] + [cfg.gyro] * 3 + [cfg.accel] * 3
-        )  # fmt: skip
         control_hz = 1.0 / control_dt_s
-        periods = []
-        for name, ch in zip(SENSOR_CHANNELS, per_channel):
-            ratio = control_hz / ch.rate_hz
-            if ratio >= 1 and abs(ratio - round(ratio)) > 1e-6:
-                raise ValueError(f"SensorConfig: {name} at {ch.rate_hz} Hz does not divide the {control_hz:.0f} Hz control rate")
-            if ratio < 1 and not name.startswith(("gyro", "accel")):
-                raise ValueError(f"SensorConfig: {name} at {ch.rate_hz} Hz is faster than the {control_hz:.0f} Hz control "
-                                 "rate; only the IMU (gyro, accel) may be")
-            periods.append(max(1, round(ratio)))
-        imu_ratio = cfg.gyro.rate_hz / control_hz
+        imu_hz = getattr(cfg, _BY_NAME[_IMU_NAMES[0]].config[0]).rate_hz
+        imu_ratio = imu_hz / control_hz
         if imu_ratio > 1 and abs(imu_ratio - round(imu_ratio)) > 1e-6:
-            raise ValueError(f"SensorConfig: gyro/accel at {cfg.gyro.rate_hz} Hz must be a whole multiple of the "
-                             f"{control_hz:.0f} Hz control rate")
+            raise ValueError(f"SensorConfig: the IMU ({', '.join(_IMU_NAMES)}) at {imu_hz} Hz must be a whole multiple "
+                             f"of the {control_hz:.0f} Hz control rate")
         self.imu_samples_per_step = max(1, round(imu_ratio))
+        per_channel: list[SensorChannelConfig] = []
+        periods, intervals = [], []
+        for ins in INSTRUMENTS:
+            for component, field in zip(ins.components, ins.config):
+                ch: SensorChannelConfig = getattr(cfg, field)
+                ratio = control_hz / ch.rate_hz
+                label = f"{ins.name}.{component} (SensorConfig.{field})"
+                if ratio >= 1 and abs(ratio - round(ratio)) > 1e-6:
+                    raise ValueError(f"{label} at {ch.rate_hz} Hz does not divide the {control_hz:.0f} Hz "
+                                     "control rate")
+                if ratio < 1 and not ins.imu:
+                    raise ValueError(f"{label} at {ch.rate_hz} Hz is faster than the {control_hz:.0f} Hz "
+                                     f"control rate; only the IMU ({', '.join(_IMU_NAMES)}) may be")
+                period = max(1, round(ratio))
+                per_channel.append(ch)
+                periods.append(period)
+                # an IMU channel's bias steps once per sub-sample
+                intervals.append(period * control_dt_s / (self.imu_samples_per_step if ins.imu else 1))
         self.period = torch.tensor(periods, dtype=torch.int64, device=device)
         self.noise_std = torch.tensor([ch.noise_std for ch in per_channel], dtype=torch.float32, device=device)
-        steps = [_gauss_markov_step(ch, p * control_dt_s / (self.imu_samples_per_step if 10 <= i < 16 else 1))
-                 for i, (ch, p) in enumerate(zip(per_channel, periods))]
+        steps = [_gauss_markov_step(ch, h) for ch, h in zip(per_channel, intervals)]
         self.bias_decay = torch.tensor([a for a, _ in steps], dtype=torch.float32, device=device)
         self.bias_step_std = torch.tensor([c for _, c in steps], dtype=torch.float32, device=device)
         self.bias_std = torch.tensor([ch.bias_std for ch in per_channel], dtype=torch.float32, device=device)
+        wrapped = [c in ins.wrapped for ins in INSTRUMENTS for c in ins.components]
+        self.wrapped = torch.tensor(wrapped, dtype=torch.bool, device=device)
 
     def imu_substeps(self, physics_substeps: int) -> tuple[int, ...]:
         """After which physics substeps of a control step (1-based counts) the simulator must
@@ -100,16 +163,21 @@ class SensorSuite:
         m = self.imu_samples_per_step
         return tuple(j * physics_substeps // m for j in range(1, m))
 
-    def ticks(self, step: Tensor, channel: int) -> Tensor:
-        """bool ``[N, 1]``: whether ``channel``'s instrument delivers a new sample at ``step``."""
-        return (step % self.period[channel] == 0).unsqueeze(-1)
+    def ticks(self, step: Tensor, name: str) -> Tensor:
+        """bool ``[N, 1]``: whether instrument ``name`` delivers a new sample at ``step``."""
+        return (step % self.period[_OFFSET[name]] == 0).unsqueeze(-1)
+
+    def imu_mean(self, state: TensorDict, name: str) -> Tensor:
+        """The mean of IMU instrument ``name``'s samples over the last control step."""
+        start = _OFFSET[name] - _IMU.start
+        return state["imu_mean"][..., start : start + _BY_NAME[name].width]
 
     def init(self, sensor_seed: Tensor) -> tuple[TensorDict, TensorDict]:
         """``(params, state)`` of a batch of episodes: the noise seed ``[N]``, and the instruments'
-        state (biases from their stationary distribution, nothing held yet)."""
+        state (biases from their stationary distribution, nothing held yet), channels packed."""
         n = sensor_seed.shape[0]
-        zeros = torch.zeros(n, NUM_SENSOR_CHANNELS, device=sensor_seed.device)
-        bias = self.bias_std * hash_normal(sensor_seed, 0, _STREAM_INITIAL_BIAS, NUM_SENSOR_CHANNELS)
+        zeros = torch.zeros(n, _NUM_CHANNELS, device=sensor_seed.device)
+        bias = self.bias_std * hash_normal(sensor_seed, 0, _STREAM_INITIAL_BIAS, _NUM_CHANNELS)
         params = TensorDict(seed=sensor_seed, batch_size=[n])
         return params, TensorDict(bias=bias, held=zeros, imu_mean=zeros[..., _IMU].clone(), batch_size=[n])
 
@@ -117,19 +185,22 @@ class SensorSuite:
         self,
         params: TensorDict,
         state: TensorDict,
-        truth: Tensor,
+        truth: TensorDict,
         step: Tensor,
         force: Tensor | None = None,
-        imu_truth_sub: Tensor | None = None,
-    ) -> tuple[Tensor, TensorDict]:
-        """Measurements ``[N, 16]`` at control step ``step`` ``[N]`` from the true values ``truth``
-        ``[N, 16]`` (same channel order). ``force`` (bool ``[N, 1]``) samples every channel, for
-        the first measurement of an episode. ``imu_truth_sub`` ``[N, m - 1, 6]``: the true body
-        rate and specific force at the IMU's intermediate samples since the last control step
-        (only with ``m > 1``; none at an episode's first measurement)."""
+        imu_truth_sub: TensorDict | None = None,
+    ) -> tuple[TensorDict, TensorDict]:
+        """``(measurements, state)`` at control step ``step`` ``[N]``: the measurements are named
+        entries (:data:`INSTRUMENTS`) of the true values ``truth`` (the same entries). ``force``
+        (bool ``[N, 1]``) samples every channel, for the first measurement of an episode.
+        ``imu_truth_sub`` (batch ``[N, m - 1]``): the true entries of the IMU instruments at the
+        IMU's intermediate samples since the last control step (only with ``m > 1``; none at an
+        episode's first measurement)."""
+        truth_packed = pack_channels(truth)
         if not self.cfg.enabled:
-            return truth, TensorDict(bias=state["bias"], held=state["held"], imu_mean=truth[..., _IMU],
-                                     batch_size=state.batch_size)
+            return unpack_channels(truth_packed), TensorDict(
+                bias=state["bias"], held=state["held"], imu_mean=truth_packed[..., _IMU], batch_size=state.batch_size
+            )
         tick = (step.unsqueeze(-1) % self.period) == 0
         if force is not None:
             tick = tick | force
@@ -137,22 +208,22 @@ class SensorSuite:
         imu_sum = None
         if imu_truth_sub is not None:
             # the IMU's intermediate samples, in time order, each with its own noise and bias step
-            sub = imu_truth_sub.shape[-2]
+            imu_truth = pack_channels(imu_truth_sub, _IMU_NAMES)
+            sub = imu_truth.shape[-2]
             draws = hash_normal(params["seed"], step, _STREAM_IMU_SUBSAMPLES, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
             imu_bias, imu_sum = bias[..., _IMU], 0.0
             for j in range(sub):
                 imu_bias = self.bias_decay[_IMU] * imu_bias + self.bias_step_std[_IMU] * draws[..., j, _NUM_IMU:]
-                imu_sum = imu_sum + imu_truth_sub[..., j, :] + imu_bias + self.noise_std[_IMU] * draws[..., j, :_NUM_IMU]
-            bias = torch.cat((bias[..., :10], imu_bias), -1)
-        draws = hash_normal(params["seed"], step, _STREAM_SENSORS, 2 * NUM_SENSOR_CHANNELS)
-        stepped = self.bias_decay * bias + self.bias_step_std * draws[..., NUM_SENSOR_CHANNELS:]
+                imu_sum = imu_sum + imu_truth[..., j, :] + imu_bias + self.noise_std[_IMU] * draws[..., j, :_NUM_IMU]
+            bias = torch.cat((bias[..., : _IMU.start], imu_bias, bias[..., _IMU.stop :]), -1)
+        draws = hash_normal(params["seed"], step, _STREAM_SENSORS, 2 * _NUM_CHANNELS)
+        stepped = self.bias_decay * bias + self.bias_step_std * draws[..., _NUM_CHANNELS:]
         bias = torch.where(tick, stepped, bias)
-        sample = truth + bias + self.noise_std * draws[..., :NUM_SENSOR_CHANNELS]
-        # wrap yaw to [-pi, pi) with a remainder, not atan2(sin, cos): torch's CPU atan2 rounds
+        sample = truth_packed + bias + self.noise_std * draws[..., :_NUM_CHANNELS]
+        # wrap angles to [-pi, pi) with a remainder, not atan2(sin, cos): torch's CPU atan2 rounds
         # differently in a kernel's vectorised body and its scalar tail, which made a row's
         # measurement depend on the batch size (tests/test_sensors.py)
-        yaw = torch.remainder(sample[..., _YAW : _YAW + 1] + math.pi, 2.0 * math.pi) - math.pi
-        sample = torch.cat((sample[..., :_YAW], yaw, sample[..., _YAW + 1 :]), -1)
+        sample = torch.where(self.wrapped, torch.remainder(sample + math.pi, 2.0 * math.pi) - math.pi, sample)
         held = torch.where(tick, sample, state["held"])
         imu_mean = held[..., _IMU] if imu_sum is None else (imu_sum + held[..., _IMU]) / self.imu_samples_per_step
-        return held, TensorDict(bias=bias, held=held, imu_mean=imu_mean, batch_size=state.batch_size)
+        return unpack_channels(held), TensorDict(bias=bias, held=held, imu_mean=imu_mean, batch_size=state.batch_size)

@@ -10,7 +10,8 @@ mode phases and amplitudes or cube) and the sensor noise seed (``params["sensors
 * ``body``: the rigid body (``pos``, ``pos_carry``, ``vel``, ``quat``, ``omega``, ``rotor``,
   :class:`~quadwind_trl.envs.vehicle.RigidBody`) and its ``specific_force``;
 * ``wind``: ``air_offset`` (the frozen field's advection), ``mean`` and ``total`` air velocity;
-* ``sensors``: ``bias``, ``held``, ``imu_mean`` and the measurements ``meas`` [N, 16];
+* ``sensors``: the instruments' packed ``bias``, ``held`` and ``imu_mean`` and the measurements
+  ``meas``, a sub-tensordict of named entries (``gps_pos``, ..., :data:`~.sensors.INSTRUMENTS`);
 * ``nav``: the navigation solution the PD flies on (``pos``, ``vel``, ``baro_offset``);
 * ``ref``: the reference (``pos``, ``vel``, ``acc``, ``yaw``);
 * ``control``: the PD output (``pd_wrench``, ``tilt_cmd``, ``tilt_saturated``), the residual
@@ -32,10 +33,11 @@ and PD wrench *at* step ``k``):
 from __future__ import annotations
 
 import torch
-from tensordict import TensorDict
+from tensordict import TensorDict, is_tensor_collection
 from torch import Tensor
 
 from ..config import GRAVITY_M_S2, EnvConfig
+from ..keys import MEAS_KEY
 from .atmosphere import Atmosphere
 from .controller import ControllerParams, pd_control
 from .navigation import NavigationParams, init_navigation, update_navigation
@@ -143,11 +145,11 @@ class QuadSimulator:
 
         body = RigidBody(*(state["body", k] for k in RigidBody._fields))
         wind_total = state["wind", "total"]
-        imu_sub = []  # body rate and specific force at the IMU's intermediate sample instants
+        imu_sub = []  # what the IMU instruments read at their intermediate sample instants
         for i in range(1, self.cfg.timing.control_substeps + 1):
             body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s)
             if i in self.imu_substeps:
-                imu_sub.append(torch.cat((body.omega, specific_force), -1))
+                imu_sub.append(TensorDict(gyro=body.omega, accel=specific_force, batch_size=state.batch_size))
         n = state.batch_size
         new = TensorDict(
             step=state["step"] + 1,
@@ -158,7 +160,7 @@ class QuadSimulator:
             control=TensorDict(ff=ff, cmd=cmd, batch_size=n),
             batch_size=n,
         )
-        new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, -2) if imu_sub else None)
+        new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, 1) if imu_sub else None)
         b = new["body"]
         finite = torch.stack([torch.isfinite(b[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
         new["finite"] = finite
@@ -167,7 +169,7 @@ class QuadSimulator:
     # --- what the vehicle and the world look like at one instant --------------------------------
 
     def _observe_instant(
-        self, params: TensorDict, state: TensorDict, first: bool, imu_truth_sub: Tensor | None = None
+        self, params: TensorDict, state: TensorDict, first: bool, imu_truth_sub: TensorDict | None = None
     ) -> TensorDict:
         """``state`` completed with the wind, reference, sensors, navigation and the PD wrench at
         its current step (``imu_truth_sub``: the IMU's true inputs at its samples inside the step
@@ -178,7 +180,9 @@ class QuadSimulator:
         ref = self.trajectories.reference(sc["traj_id"], step, params["pattern_start"], sc["altitude_m"])
         rot = quat_to_rotmat(body["quat"])
         euler = euler_from_rotmat(rot)
-        truth = torch.cat((pos, body["vel"], pos[..., 2:], euler, body["omega"], body["specific_force"]), -1)
+        # what each instrument would read without noise or bias
+        truth = TensorDict(gps_pos=pos, gps_vel=body["vel"], baro_alt=pos[..., 2:], attitude=euler,
+                           gyro=body["omega"], accel=body["specific_force"], batch_size=state.batch_size)
         force = torch.ones_like(step, dtype=torch.bool).unsqueeze(-1) if first else None
         meas, sensor_state = self.sensors.measure(params["sensors"], state["sensors"], truth, step, force=force,
                                                   imu_truth_sub=imu_truth_sub)
@@ -194,19 +198,19 @@ class QuadSimulator:
                 nav = update_navigation(
                     state["nav"],
                     meas,
-                    sensor_state["imu_mean"][..., 3:],
-                    self.sensors.ticks(step, 0),
-                    self.sensors.ticks(step, 6),
+                    self.sensors.imu_mean(sensor_state, "accel"),
+                    self.sensors.ticks(step, "gps_pos"),
+                    self.sensors.ticks(step, "baro_alt"),
                     self.navigation,
                     self.control_dt,
                 )
-            nav_rot, nav_omega = quat_to_rotmat(quat_from_euler(*meas[..., 7:10].unbind(-1))), meas[..., 10:13]
+            nav_rot, nav_omega = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1))), meas["gyro"]
         pd = pd_control(nav["pos"], nav["vel"], nav_rot, nav_omega, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw,
                         ref.yaw_rate, self.controller)
 
         out = state.clone(recurse=False)
         wind_state.update(dict(mean=mean, total=total))
-        sensor_state["meas"] = meas
+        sensor_state[MEAS_KEY] = meas
         out.update(dict(wind=wind_state, sensors=sensor_state, nav=nav))
         out["ref"] = TensorDict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw, batch_size=state.batch_size)
         control = out["control"].clone(recurse=False)
@@ -232,9 +236,15 @@ def _sanitize(state: TensorDict, broken: Tensor) -> TensorDict:
     }
     out = state.clone(recurse=False)
     out["body"] = body.clone(recurse=False).update({k: torch.where(broken, v, body[k]) for k, v in fixes.items()})
-    zeroed = {"sensors": ("meas",), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
+    zeroed = {"sensors": (MEAS_KEY,), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
+
+    def zero(v: Tensor) -> Tensor:
+        return torch.where(broken, 0.0, v.nan_to_num())
+
     for group, keys in zeroed.items():
         sub = state[group].clone(recurse=False)
-        sub.update({k: torch.where(broken, 0.0, sub[k].nan_to_num()) for k in keys})
+        # the measurements are a sub-tensordict of named entries: zeroed entry by entry
+        for k in keys:  # set, not update: update would write into the shared sub-tensordict
+            sub.set(k, sub[k].apply(zero) if is_tensor_collection(sub[k]) else zero(sub[k]))
         out[group] = sub
     return out

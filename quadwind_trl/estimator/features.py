@@ -6,6 +6,7 @@ A :class:`FeatureExtractor` consumes the raw flight record one 10 Hz tick at a t
     fx = FeatureExtractor("horizontal")            # or "vertical"
     state = fx.init_state(batch=N, device=dev)
     state, f_t = fx.step(state, record_t)          # record_t: {key: [N, ...]} for key in fx.raw_keys
+                                                   # (record_t["meas"]: the sensors' named entries)
     state = fx.reset_rows(state, mask)             # restart the rows of a bool [N] mask
 
 ``step`` is pure: it never mutates ``state`` or ``record_t`` and returns a new state. The offline
@@ -18,7 +19,9 @@ The raw record (``RAW_RECORD_KEYS``, all of them observation keys of ``QuadWindE
 =================  ====  ==========================================================================
 key                size  content
 =================  ====  ==========================================================================
-``meas``           16    sensor channels, ``quadwind_trl.envs.sensors.SENSOR_CHANNELS`` order
+``meas``           -     the sensors' named entries (``quadwind_trl.envs.sensors.INSTRUMENTS``):
+                         ``gps_pos`` [3], ``gps_vel`` [3], ``baro_alt`` [1], ``attitude`` [3],
+                         ``gyro`` [3], ``accel`` [3]; read here by name
 ``cmd_wrench``     4     commanded collective thrust ``u_T`` (N), body torques (N m), last step
 ``tilt_cmd``       1     PD commanded tilt from vertical (rad)
 ``tilt_saturated`` 1     bool, the PD tilt limit was active
@@ -39,36 +42,36 @@ from typing import Literal, Mapping
 import torch
 from torch import Tensor
 
+from tensordict import TensorDict
+
 from ..config import GRAVITY_M_S2, EnvConfig
-from ..envs.sensors import SENSOR_CHANNELS
+from ..envs.sensors import sensor_widths
+from ..keys import MEAS_KEY, YawMode, kinematic_channels
 
 Schema = Literal["horizontal", "vertical"]
-YawMode = Literal["ref_relative", "wrapped"]
 
 #: everything any schema reads from the flight record / env observation, in one list
-RAW_RECORD_KEYS: tuple[str, ...] = ("meas", "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
-RAW_RECORD_SIZES: dict[str, int] = {"meas": len(SENSOR_CHANNELS), "cmd_wrench": 4, "tilt_cmd": 1, "tilt_saturated": 1, "ref_pos": 3, "ref_yaw": 1}
+RAW_RECORD_KEYS: tuple[str, ...] = (MEAS_KEY, "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
 RAW_KEYS_BY_SCHEMA: dict[str, tuple[str, ...]] = {
-    "horizontal": ("meas", "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_yaw"),
-    "vertical": ("meas", "ref_pos", "ref_yaw"),
+    "horizontal": (MEAS_KEY, "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_yaw"),
+    "vertical": (MEAS_KEY, "ref_pos", "ref_yaw"),
 }
-
-_M = {name: i for i, name in enumerate(SENSOR_CHANNELS)}
 
 LOG_DT_S = 0.1  # the 10 Hz record
 TRAILING_WINDOWS: tuple[int, int] = (100, 300)  # paper: 10 s and 30 s at 10 Hz
 
 
-def kinematic_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
-    """The 13 controller-agnostic kinematic channels of sensor17 (shared by both schemas)."""
-    yaw = "yaw_err" if yaw_mode == "ref_relative" else "yaw"
-    return (
-        "alt",
-        "vel_E", "vel_N", "vel_U",
-        "acc_bx", "acc_by", "acc_bz",
-        "roll", "pitch", yaw,
-        "rate_p", "rate_q", "rate_r",
-    )  # fmt: skip
+def raw_record_template(*shape: int) -> TensorDict:
+    """Zero-storage (expanded) entries of the raw record (:data:`RAW_RECORD_KEYS`) of batch
+    ``shape``, the sensors nested under ``MEAS_KEY``: the record's layout, in one place."""
+
+    def zero(width: int, dtype: torch.dtype = torch.float32) -> Tensor:
+        return torch.zeros((1,) * (len(shape) + 1), dtype=dtype).expand(*shape, width)
+
+    meas = TensorDict({name: zero(w) for name, w in sensor_widths().items()}, batch_size=shape)
+    flat = {"cmd_wrench": zero(4), "tilt_cmd": zero(1), "tilt_saturated": zero(1, torch.bool), "ref_pos": zero(3),
+            "ref_yaw": zero(1)}
+    return TensorDict({MEAS_KEY: meas, **flat}, batch_size=shape)
 
 
 #: the 11 signals whose causal trailing means are taken (paper: horizontal velocities and
@@ -202,13 +205,14 @@ class FeatureExtractor:
 
     # --- one tick -------------------------------------------------------------------------------
 
-    def step(self, state: dict, record: Mapping[str, Tensor]) -> tuple[dict, Tensor]:
+    def step(self, state: dict, record: Mapping[str, Tensor | TensorDict]) -> tuple[dict, Tensor]:
         """Consume one 10 Hz sample per row; returns ``(new_state, features [N, C] float32)``."""
-        meas = record["meas"].to(torch.float32)
+        # the features boundary: the named sensor entries become the packed feature channels
+        meas = record[MEAS_KEY]
         g = self.gravity_m_s2
-        roll, pitch, yaw = meas[..., _M["roll"]], meas[..., _M["pitch"]], meas[..., _M["yaw"]]
+        roll, pitch, yaw = meas["attitude"].to(torch.float32).unbind(-1)
         r = rotation_from_euler(roll, pitch, yaw)
-        sf_b = (meas[..., _M["accel_x"]], meas[..., _M["accel_y"]], meas[..., _M["accel_z"]])
+        sf_b = meas["accel"].to(torch.float32).unbind(-1)
         # kinematic body acceleration a_b = f_b + R^T (0, 0, -g); R^T e_z is R's third row
         acc_b = tuple(f - g * r[2][i] for i, f in enumerate(sf_b))
         if self.yaw_mode == "ref_relative":
@@ -216,11 +220,11 @@ class FeatureExtractor:
         else:
             yaw_ch = wrap_angle(yaw)
         kin = [
-            meas[..., _M["baro_alt"]],
-            meas[..., _M["gps_vx"]], meas[..., _M["gps_vy"]], meas[..., _M["gps_vz"]],
+            meas["baro_alt"][..., 0].to(torch.float32),
+            *meas["gps_vel"].to(torch.float32).unbind(-1),
             *acc_b,
             roll, pitch, yaw_ch,
-            meas[..., _M["gyro_x"]], meas[..., _M["gyro_y"]], meas[..., _M["gyro_z"]],
+            *meas["gyro"].to(torch.float32).unbind(-1),
         ]  # fmt: skip
         count = state["count"] + 1
         if self.schema == "vertical":
@@ -263,7 +267,8 @@ class FeatureExtractor:
 
     def _vertical(self, state, record, meas, kin, count) -> tuple[dict, Tensor]:
         ref = record["ref_pos"].to(torch.float32)
-        measured = torch.stack((meas[..., _M["gps_x"]], meas[..., _M["gps_y"]], meas[..., _M["baro_alt"]]), -1)
+        # the horizontal GPS position and the barometric altitude (the vehicle's altitude source)
+        measured = torch.cat((meas["gps_pos"][..., :2], meas["baro_alt"]), -1).to(torch.float32)
         d = measured - ref
         started = (state["count"] > 0).unsqueeze(-1)
         # causal backward differences of the reference position on the 10 Hz grid; zero at a
@@ -275,15 +280,15 @@ class FeatureExtractor:
 
     # --- offline --------------------------------------------------------------------------------
 
-    def scan(self, record: Mapping[str, Tensor], out: Tensor | None = None, progress: bool = False) -> Tensor:
+    def scan(self, record: Mapping[str, Tensor | TensorDict], out: Tensor | None = None, progress: bool = False) -> Tensor:
         """Features ``[n, T, C]`` of ``n`` flights' records ``{key: [n, T, ...]}`` (each row starts
         at its flight's first sample): :meth:`step` over the time axis, batched over flights.
 
         ``out`` (e.g. a slice of a memory-mapped tensor) receives the result if given.
         """
-        first = record[self.raw_keys[0]]
-        n, t_len = first.shape[:2]
-        device = first.device
+        ref_yaw = record["ref_yaw"]  # a plain tensor every schema reads: the batch shape and device
+        n, t_len = ref_yaw.shape[:2]
+        device = ref_yaw.device
         # time-major contiguous copies: each tick's input is laid out exactly as online
         series = {k: record[k].transpose(0, 1).contiguous() for k in self.raw_keys}
         if out is None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 from typing import Mapping
 
 import torch
+from tensordict import TensorDictBase
 from torch import Tensor
 
 from .features import FeatureExtractor
@@ -97,7 +98,7 @@ class FeatureRing:
         """bool ``[N]``: rows whose control step ``step`` (``[N, 1]`` or ``[N]``) is a log tick."""
         return (step.reshape(-1) % self.log_every) == 0
 
-    def ingest(self, record: Mapping[str, Tensor], mask: Tensor) -> Tensor:
+    def ingest(self, record: Mapping[str, Tensor | TensorDictBase], mask: Tensor) -> Tensor:
         """Feed one 10 Hz sample to the rows of ``mask``; returns their indices (``[B]`` int64).
 
         Rows outside ``mask`` are left exactly as they were (extractor state, ring, count)."""

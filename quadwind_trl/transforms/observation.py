@@ -50,9 +50,7 @@ from torchrl.envs import Transform
 
 from ..config import GRAVITY_M_S2, EnvConfig
 from ..estimator.features import FeatureExtractor
-from ..keys import OBSERVATION_DIM, OBSERVATION_KEY, WIND_KEY
-
-_YAW = 9  # measured yaw in ``meas`` (envs.sensors.SENSOR_CHANNELS)
+from ..keys import MEAS_KEY, OBSERVATION_DIM, OBSERVATION_KEY, WIND_KEY
 
 
 def to_heading_frame(east: torch.Tensor, north: torch.Tensor, yaw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -72,7 +70,7 @@ class PolicyObservation(Transform):
 
     def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = OBSERVATION_KEY):
         cfg = config or EnvConfig()
-        in_keys = ["meas", "ref_pos", "ref_yaw", "pos_error", "pd_wrench", "ff_wrench", wind_key]
+        in_keys = [MEAS_KEY, "ref_pos", "ref_yaw", "pos_error", "pd_wrench", "ff_wrench", wind_key]
         super().__init__(in_keys=in_keys, out_keys=[out_key])
         self.wind_key, self.out_key = wind_key, out_key
         # the kinematic block through the feature code itself (a stateless vertical-schema step;
@@ -82,12 +80,11 @@ class PolicyObservation(Transform):
         self.register_buffer("action_scale", torch.tensor(cfg.residual.action_scale, dtype=torch.float32), persistent=False)
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        meas = next_tensordict.get("meas")
-        n = meas.shape[0]
-        record = {k: next_tensordict.get(k) for k in ("meas", "ref_pos", "ref_yaw")}
-        _, feats = self._kin.step(self._kin.init_state(n, meas.device), record)
-        ff = next_tensordict.get("ff_wrench") / self.action_scale.to(meas.device)
-        yaw = meas[..., _YAW]
+        record = {k: next_tensordict.get(k) for k in self._kin.raw_keys}
+        ref_yaw = record["ref_yaw"]
+        _, feats = self._kin.step(self._kin.init_state(ref_yaw.shape[0], ref_yaw.device), record)
+        ff = next_tensordict.get("ff_wrench") / self.action_scale.to(ref_yaw.device)
+        _, _, yaw = next_tensordict.get((MEAS_KEY, "attitude")).unbind(-1)  # (roll, pitch, yaw): the measured yaw
         vel_f, vel_l = to_heading_frame(feats[..., 1], feats[..., 2], yaw)
         wind = next_tensordict.get(self.wind_key)  # (north, east)
         wind_f, wind_l = to_heading_frame(wind[..., 1], wind[..., 0], yaw)
