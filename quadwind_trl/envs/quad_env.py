@@ -45,6 +45,28 @@ class ScenarioSampler:
         return sc
 
 
+# observation entry -> (simulator state entry it shows, width): the float entries of the
+# observation are views of the state, declared once for the specs and the observation
+_STATE_VIEWS: dict[NestedKey, tuple[NestedKey, int]] = {
+    "ref_pos": (("ref", "pos"), 3),
+    "ref_vel": (("ref", "vel"), 3),
+    "ref_acc": (("ref", "acc"), 3),
+    "ref_yaw": (("ref", "yaw"), 1),
+    "nav_pos": (("nav", "pos"), 3),
+    "nav_vel": (("nav", "vel"), 3),
+    "pd_wrench": (("control", "pd_wrench"), 4),
+    "ff_wrench": (("control", "ff"), 4),
+    "cmd_wrench": (("control", "cmd"), 4),
+    "tilt_cmd": (("control", "tilt_cmd"), 1),
+    ("truth", "pos"): (("body", "pos"), 3),
+    ("truth", "vel"): (("body", "vel"), 3),
+    ("truth", "quat"): (("body", "quat"), 4),
+    ("truth", "omega"): (("body", "omega"), 3),
+    ("truth", "wind"): (("wind", "total"), 3),  # the air velocity the vehicle flies in
+    ("truth", "mean_wind"): (("wind", "mean"), 3),  # turbulence-free
+}
+
+
 def _vec(n: int, dim: int, device, dtype=torch.float32) -> Unbounded:
     return Unbounded(shape=(n, dim), device=device, dtype=dtype)
 
@@ -121,34 +143,14 @@ class QuadWindEnv(EnvBase):
 
     def _make_specs(self) -> None:
         n, dev = self.batch_size[0], self.device
-        self.observation_spec = Composite(
-            {MEAS_KEY: Composite({i.name: _vec(n, i.width, dev) for i in INSTRUMENTS}, shape=(n,), device=dev)},
-            ref_pos=_vec(n, 3, dev),
-            ref_vel=_vec(n, 3, dev),
-            ref_acc=_vec(n, 3, dev),
-            ref_yaw=_vec(n, 1, dev),
-            nav_pos=_vec(n, 3, dev),
-            nav_vel=_vec(n, 3, dev),
-            pos_error=_vec(n, 3, dev),
-            pd_wrench=_vec(n, 4, dev),
-            ff_wrench=_vec(n, 4, dev),
-            cmd_wrench=_vec(n, 4, dev),
-            tilt_cmd=_vec(n, 1, dev),
-            tilt_saturated=Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool),
-            step=_vec(n, 1, dev, torch.int64),
-            truth=Composite(
-                pos=_vec(n, 3, dev),
-                vel=_vec(n, 3, dev),
-                quat=_vec(n, 4, dev),
-                omega=_vec(n, 3, dev),
-                wind=_vec(n, 3, dev),
-                mean_wind=_vec(n, 3, dev),
-                shape=(n,),
-                device=dev,
-            ),
-            shape=(n,),
-            device=dev,
-        )
+        spec = Composite({MEAS_KEY: Composite({i.name: _vec(n, i.width, dev) for i in INSTRUMENTS}, shape=(n,), device=dev),
+                          "truth": Composite(shape=(n,), device=dev)}, shape=(n,), device=dev)
+        for key, (_, width) in _STATE_VIEWS.items():
+            spec[key] = _vec(n, width, dev)
+        spec["pos_error"] = _vec(n, 3, dev)
+        spec["tilt_saturated"] = Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)
+        spec["step"] = _vec(n, 1, dev, torch.int64)
+        self.observation_spec = spec
         self.action_spec = Bounded(low=-1.0, high=1.0, shape=(n, 4), device=dev)
         self.reward_spec = Unbounded(shape=(n, 1), device=dev)
         flag = lambda: Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)  # noqa: E731
@@ -211,35 +213,19 @@ class QuadWindEnv(EnvBase):
     # --- helpers --------------------------------------------------------------------------------
 
     def _observation(self, s: TensorDict) -> TensorDict:
-        body, nav, ref, control = s["body"], s["nav"], s["ref"], s["control"]
-        return TensorDict(
+        obs = TensorDict(
             {
                 MEAS_KEY: s["sensors", MEAS_KEY],
-                "ref_pos": ref["pos"],
-                "ref_vel": ref["vel"],
-                "ref_acc": ref["acc"],
-                "ref_yaw": ref["yaw"],
-                "nav_pos": nav["pos"],
-                "nav_vel": nav["vel"],
-                "pos_error": nav["pos"] - ref["pos"],
-                "pd_wrench": control["pd_wrench"],
-                "ff_wrench": control["ff"],
-                "cmd_wrench": control["cmd"],
-                "tilt_cmd": control["tilt_cmd"],
-                "tilt_saturated": control["tilt_saturated"],
+                "pos_error": s["nav", "pos"] - s["ref", "pos"],
+                "tilt_saturated": s["control", "tilt_saturated"],
                 "step": s["step"].unsqueeze(-1),
-                "truth": {
-                    "pos": body["pos"],
-                    "vel": body["vel"],
-                    "quat": body["quat"],
-                    "omega": body["omega"],
-                    "wind": s["wind", "total"],
-                    "mean_wind": s["wind", "mean"],
-                },
             },
             batch_size=self.batch_size,
             device=self.device,
         )
+        for key, (source, _) in _STATE_VIEWS.items():
+            obs[key] = s[source]
+        return obs
 
     def sim_state(self, key: NestedKey) -> torch.Tensor:
         """A copy of one entry of the simulator's state or, failing that, of its per-episode
