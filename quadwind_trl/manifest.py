@@ -7,6 +7,7 @@ import os
 import shlex
 import subprocess
 from pathlib import Path
+from typing import ClassVar
 
 
 def git_commit() -> str | None:
@@ -58,3 +59,18 @@ def repo_relative(path: str | os.PathLike) -> str:
 def command_line(argv: list[str]) -> str:
     """The command a manifest records: ``python`` and ``argv`` with repository paths relative."""
     return shlex.join(["python"] + [repo_relative(a) if os.path.isabs(a) else a for a in argv])
+
+
+class CheckpointParts:
+    """``state_dict`` / ``load_state_dict`` over a training run's named parts (modules,
+    optimisers, schedulers): ``checkpoint_parts`` maps each checkpoint key to the attribute that
+    holds the part, so what a checkpoint contains is declared once per trainer."""
+
+    checkpoint_parts: ClassVar[dict[str, str]] = {}
+
+    def state_dict(self) -> dict:
+        return {key: getattr(self, attr).state_dict() for key, attr in self.checkpoint_parts.items()}
+
+    def load_state_dict(self, state: dict) -> None:
+        for key, attr in self.checkpoint_parts.items():
+            getattr(self, attr).load_state_dict(state[key])

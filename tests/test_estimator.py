@@ -16,19 +16,21 @@ from quadwind_trl.estimator.features import HORIZONTAL_CHANNELS, VERTICAL_CHANNE
 from quadwind_trl.data.generate import generate_dataset, quick_spec
 from quadwind_trl.evaluation.estimation import (
     FlightSequences,
-    Reference,
     bin_index,
     bin_labels,
+    ema_sweep,
+    evaluate_sequences,
+    predict_flights,
+    turbulence_floor,
+)
+from quadwind_trl.estimator.metrics import (
+    Reference,
     component_rmse,
     direction_errors_deg,
-    ema_sweep,
     estimation_metrics,
-    evaluate_sequences,
     least_squares_slope,
     pearson,
     per_flight_vector_rmse,
-    predict_flights,
-    turbulence_floor,
     vector_rmse,
 )
 from quadwind_trl.estimator.loss import EstimatorLoss, EstimatorLossConfig, wind_angle

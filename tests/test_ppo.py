@@ -177,16 +177,6 @@ def test_short_run_improves_mean_return(tmp_path, seed):
     assert sum(rewards[-2:]) / 2 > rewards[0], rewards
 
 
-def test_rl_does_not_import_evaluation():
-    """The dependency order is envs -> transforms -> rl -> evaluation -> recipes: the trainer's
-    paired evaluation flies through rl.paired, nothing in rl reaches up into evaluation."""
-    code = ("import sys, quadwind_trl.rl, quadwind_trl.rl.cli; "
-            "print([m for m in sys.modules if m.startswith('quadwind_trl.evaluation')])")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert proc.stdout.strip() == "[]"
-
-
 def test_fly_paired_refuses_envs_of_different_batch_sizes():
     from quadwind_trl.envs import QuadWindEnv
     from quadwind_trl.rl.paired import fly_paired

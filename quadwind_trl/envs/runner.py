@@ -22,6 +22,7 @@ from ..validation import validate_scenarios
 from .quad_env import QuadWindEnv
 
 NestedKey = str | tuple[str, ...]
+Policy = Callable[[TensorDictBase], TensorDictBase]
 AUTO_PROGRESS_DELAY_S = 3.0
 
 DEFAULT_LOG_KEYS: tuple[NestedKey, ...] = (
@@ -71,7 +72,7 @@ def _base(env: EnvBase) -> QuadWindEnv:
 def iter_flights(
     env: EnvBase,
     scenarios: TensorDictBase,
-    policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
+    policy: Policy | None = None,
     log_keys: Sequence[NestedKey] = DEFAULT_LOG_KEYS,
     progress: bool | None = None,
     skip: Tensor | None = None,
@@ -112,16 +113,12 @@ def iter_flights(
     bar.close()
 
 
-def fly(
-    env: EnvBase,
-    scenarios: TensorDictBase,
-    policy: Callable[[TensorDictBase], TensorDictBase] | None = None,
-    log_keys: Sequence[NestedKey] = DEFAULT_LOG_KEYS,
-    progress: bool | None = None,
-) -> FlightResults:
-    """All flights of :func:`iter_flights`, in the order of ``scenarios``; records are padded to
-    the longest flight (``log["valid"]`` marks real samples)."""
-    parts = list(iter_flights(env, scenarios, policy, log_keys, progress))
+
+def fly(env: EnvBase, scenarios: TensorDictBase, policy: Policy | None = None, **options) -> FlightResults:
+    """All flights of :func:`iter_flights` (``options``: its ``log_keys``, ``progress``), in the
+    order of ``scenarios``; records are padded to the longest flight (``log["valid"]`` marks real
+    samples)."""
+    parts = list(iter_flights(env, scenarios, policy, **options))
     length = max(p.log.batch_size[1] for p in parts)
     logs = []
     for p in parts:

@@ -40,11 +40,11 @@ from torch import Tensor
 
 from ..data.generate import load_dataset
 from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
-from ..evaluation.estimation import estimation_metrics
-from ..manifest import git_commit, repo_relative, save_atomic
+from ..manifest import CheckpointParts, git_commit, repo_relative, save_atomic
 from .checkpoint import EstimatorBundle
 from .features import make_extractor
 from .loss import EstimatorLoss, EstimatorLossConfig
+from .metrics import estimation_metrics
 from .model import AttentionGRUEstimator, EstimatorConfig
 
 REGIMES = ("horizontal", "vertical")
@@ -350,8 +350,10 @@ class _Progress:
         return improved
 
 
-class _Trainer:
+class _Trainer(CheckpointParts):
     """The model, loss, optimiser, schedule and sampler of one run, and its per-epoch step."""
+
+    checkpoint_parts = {"model": "model", "optimizer": "opt", "scheduler": "sched"}
 
     def __init__(self, wd: WindowedData, cfg: TrainConfig):
         self.wd, self.cfg = wd, cfg
@@ -372,14 +374,6 @@ class _Trainer:
         self.val_table = strided_table(wd, "val", cfg.val_stride)
         self.n_params = sum(p.numel() for p in self.model.parameters())
         self.train_model = torch.compile(self.model) if cfg.compile else self.model
-
-    def state_dict(self) -> dict:
-        return {"model": self.model.state_dict(), "optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.model.load_state_dict(state["model"])
-        self.opt.load_state_dict(state["optimizer"])
-        self.sched.load_state_dict(state["scheduler"])
 
     def validate(self) -> dict[str, float]:
         return evaluate_table(self.model, self.wd, self.val_table, self.loss_fn, self.cfg.eval_batch_size)

@@ -13,6 +13,7 @@ from torchrl.modules import ProbabilisticActor, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from ..manifest import CheckpointParts
 from .config import PPOConfig
 
 # what the loss reads from a collected batch (the rest, e.g. the flight record, is dropped)
@@ -22,8 +23,11 @@ LOSS_METRICS = ("loss_objective", "loss_critic", "loss_entropy", "entropy", "cli
                 "explained_variance")
 
 
-class PPOUpdate:
+class PPOUpdate(CheckpointParts):
     """ClipPPOLoss + GAE + Adam over the actor and critic: ``update(batch, generator)`` -> mean losses."""
+
+    # the training checkpoint's entries (state_dict / load_state_dict)
+    checkpoint_parts = {"policy": "actor", "value": "value", "optimizer": "optim"}
 
     def __init__(self, actor: ProbabilisticActor, value: ValueOperator, cfg: PPOConfig):
         self.cfg = cfg
@@ -69,11 +73,3 @@ class PPOUpdate:
                 steps += 1
         return {k: float(v) / steps for k, v in sums.items()}
 
-    def state_dict(self) -> dict:
-        """Actor, critic and optimiser state (the training checkpoint's ``policy``, ``value``, ``optimizer``)."""
-        return {"policy": self.actor.state_dict(), "value": self.value.state_dict(), "optimizer": self.optim.state_dict()}
-
-    def load_state_dict(self, state: dict) -> None:
-        self.actor.load_state_dict(state["policy"])
-        self.value.load_state_dict(state["value"])
-        self.optim.load_state_dict(state["optimizer"])
