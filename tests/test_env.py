@@ -306,6 +306,26 @@ def test_partial_reset_touches_only_masked_rows():
     assert torch.equal(out["step"][[0, 3]], torch.zeros(2, 1, dtype=torch.int64))
 
 
+def test_partial_reset_draws_and_builds_the_rows_a_full_reset_would():
+    """Only the restarted rows are drawn and built (a sub-batch); their episodes are the ones a
+    full reset of the same env draws for them, to the bit, and the other rows are untouched."""
+    env, full = QuadWindEnv(batch_size=[5], seed=3), QuadWindEnv(batch_size=[5], seed=3)
+    env.reset()
+    before = {"params": env.params.clone(), "state": env.state.clone()}
+    mask = torch.tensor([[False], [True], [False], [False], [True]])
+    env.reset(TensorDict(_reset=mask, batch_size=[5]))
+    full.reset()
+    full.reset()  # every row's second episode
+    for part in ("params", "state"):
+        now, ref = getattr(env, part), getattr(full, part)
+        for key in now.keys(include_nested=True, leaves_only=True):
+            assert torch.equal(now[key][[1, 4]], ref[key][[1, 4]]), (part, key)
+            assert torch.equal(now[key][[0, 2, 3]], before[part][key][[0, 2, 3]]), (part, key)
+    untouched = env.state
+    env.reset(TensorDict(_reset=torch.zeros(5, 1, dtype=torch.bool), batch_size=[5]))
+    assert env.state is untouched
+
+
 def test_check_env_specs_and_rollout_shapes():
     env = QuadWindEnv(batch_size=[3])
     check_env_specs(env)

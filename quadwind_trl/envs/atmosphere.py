@@ -266,11 +266,16 @@ class Atmosphere:
             local = [x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2] + params["cube_offset"][..., c] for c in range(3)]
             bx, by, bz = self._interpolate_cube(params["cube"], local).unbind(-1)
             return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
-        k_scale = params["k_scale"]
-        theta = params["phase"]
-        for c in range(3):  # theta = phase + sum_c (M_in x)_c k_scale kappa_m d_mc
-            local = x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2]
-            theta = theta + (local.unsqueeze(-1) * k_scale) * self.wavevector[:, c]
+        # per row, once: the position in the skeleton frame in length scales, [..., N, 1, 3]; the
+        # [..., N, M] phase below then reads three numbers per row (before, the compiled kernel
+        # recomputed each row's rotation for every mode)
+        scaled = torch.stack(
+            [(x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2]).unsqueeze(-1) * params["k_scale"] for c in range(3)], -1
+        )  # fmt: skip
+        w = self.wavevector
+        # theta = phase + sum_c scaled_c kappa_m d_mc: the operations and order of the per-mode
+        # form, so the same bits eager and compiled
+        theta = params["phase"] + scaled[..., 0] * w[:, 0] + scaled[..., 1] * w[:, 1] + scaled[..., 2] * w[:, 2]
         modes = torch.cos(theta) * params["amplitude"]
         bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1) for c in range(3))  # skeleton frame
         return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)

@@ -167,15 +167,22 @@ class QuadWindEnv(EnvBase):
     def _reset(self, tensordict: TensorDictBase | None = None, scenario: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         n = self.batch_size[0]
         mask = tensordict.get("_reset", None) if tensordict is not None else None
-        mask = torch.ones(n, dtype=torch.bool, device=self.device) if mask is None else mask.reshape(n)
-        if scenario is None:
-            scenario = self.scenario_sampler(self._row_keys, self._episode_count)
-        else:  # a user's spec: checked once per reset (the sampler's draws are valid by construction)
+        if mask is None or self.state is None:
+            mask = torch.ones(n, dtype=torch.bool, device=self.device)
+        mask = mask.reshape(n)
+        if scenario is not None:  # a user's spec: checked once per reset (the sampler's draws are valid by construction)
             if tuple(scenario.batch_size) != (n,):
                 raise ValueError(f"scenario has batch size {list(scenario.batch_size)}, expected [{n}] (one row per sub-env)")
             validate_scenarios(scenario)
-        self._episode_count = self._episode_count + mask.to(torch.int64)
-        self.params, self.state = self.sim.reset(self.params, self.state, scenario, mask)
+        # the one host sync of a reset: which rows restart, so that only those rows are drawn and built
+        rows = mask.nonzero().squeeze(-1)
+        if rows.numel() > 0:
+            if scenario is None:
+                scenario = self.scenario_sampler(self._row_keys[rows], self._episode_count[rows])
+            else:
+                scenario = scenario[rows]
+            self._episode_count = self._episode_count + mask.to(torch.int64)
+            self.params, self.state = self.sim.reset(self.params, self.state, scenario, None if rows.numel() == n else rows)
         out = self._observation(self.state)
         out.update(self.full_done_spec.zero())
         return out

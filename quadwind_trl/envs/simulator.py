@@ -120,15 +120,17 @@ class QuadSimulator:
         return params, state
 
     def reset(
-        self, params: TensorDict | None, state: TensorDict | None, scenario: TensorDict, mask: Tensor | None = None
+        self, params: TensorDict | None, state: TensorDict | None, scenario: TensorDict, rows: Tensor | None = None
     ) -> tuple[TensorDict, TensorDict]:
-        """Start the episodes of rows ``mask`` (bool ``[N]``; all rows if None) from ``scenario``
-        (all rows); other rows keep their params and state untouched. Branch-free."""
+        """Start the episodes of rows ``rows`` (int64 ``[K]``; all rows if None) from ``scenario``
+        (``[K]``, one row per restarted row, in that order); other rows keep their params and
+        state untouched. Only the ``K`` restarted rows are computed: a row's start is a function
+        of its scenario alone, so a sub-batch gives the bits the full batch would (a partial
+        reset of one row costs one row, not ``N``)."""
         new_params, new_state = self.initial(scenario)
-        if state is None or mask is None:
+        if state is None or rows is None:
             return new_params, new_state
-        mask = mask.reshape(-1)
-        return new_params.where(mask, params), new_state.where(mask, state)
+        return _scatter_rows(params, rows, new_params), _scatter_rows(state, rows, new_state)
 
     # --- one control step ---------------------------------------------------------------------
 
@@ -217,6 +219,12 @@ class QuadSimulator:
         control.update(dict(pd_wrench=pd.wrench, tilt_cmd=pd.tilt_cmd, tilt_saturated=pd.tilt_saturated))
         out["control"] = control
         return out
+
+
+def _scatter_rows(full: TensorDict, rows: Tensor, part: TensorDict) -> TensorDict:
+    """``full`` with its rows ``rows`` replaced by ``part``'s rows, out of place: the tensors of
+    ``full`` may still be held by observations already returned."""
+    return full.apply(lambda whole, new: whole.index_copy(0, rows, new), part)
 
 
 def _sanitize(state: TensorDict, broken: Tensor) -> TensorDict:
