@@ -1,7 +1,7 @@
 """Re-fly a slice of an evaluation sweep and record (or check) every per-episode RMSE to the bit.
 
     python recipes/replay_slice.py --out runs/replay/before.json                 # horizontal 0:45
-    python recipes/replay_slice.py --compare runs/replay/before.json             # after a refactor
+    python recipes/replay_slice.py --compare results/replay/horizontal_0-45.json # ~6 min, 1 thread
     python recipes/replay_slice.py --quick --episodes 0:3 --out tests/data/replay_golden.json
 
 Flown: PD on the default vehicle (``EnvConfig()``), and the shipped policy of the sweep's regime
