@@ -43,15 +43,15 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     env = make_env("horizontal", bundle, n, desync_steps=episode_steps_hint(RLEnvSpec("horizontal")))
     base = env.base_env
     sim_time = [0.0]
-    raw_step = base._sim_step
+    raw_step = base._advance  # one control step (simulator + task), the env calls it hold times per step
 
-    def timed_step(state, action):
+    def timed_step(params, state, action):
         t0 = time.perf_counter()
-        out = raw_step(state, action)
+        out = raw_step(params, state, action)
         sim_time[0] += time.perf_counter() - t0
         return out
 
-    base._sim_step = timed_step
+    base._advance = timed_step
     west = wind_estimate(env)
     tick_time = [0.0]
     raw_tick = west._tick
