@@ -192,11 +192,6 @@ class TimingConfig:
         return self.control_dt_s * self.log_every_control_steps
 
     @property
-    def decision_dt_s(self) -> float:
-        """Seconds per env step."""
-        return self.control_dt_s * self.hold_control_steps
-
-    @property
     def decisions_per_log(self) -> int:
         """Env steps per 10 Hz log tick."""
         return self.log_every_control_steps // self.hold_control_steps

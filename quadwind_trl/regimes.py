@@ -88,10 +88,6 @@ class EvalSweep:
     ranges: RegimeRanges
     design_seed: int = EVAL_DESIGN_SEED
 
-    @property
-    def num_episodes(self) -> int:
-        return len(self.trajectories) * len(self.wind_speeds) * len(self.intensities) * self.seeds
-
     def scenarios(self) -> TensorDict:
         """The sweep's episodes (case-major, trajectory-minor), with ``case_id``, ``seed_index``."""
         speeds = torch.tensor(self.wind_speeds, dtype=torch.float64)

@@ -2,7 +2,7 @@
 
     python recipes/replay_slice.py --out runs/replay/before.json                 # horizontal 0:45
     python recipes/replay_slice.py --compare results/replay/horizontal_0-45.json # ~6 min, 1 thread
-    python recipes/replay_slice.py --quick --episodes 0:3 --out tests/data/replay_golden.json
+    python recipes/replay_slice.py --quick --episodes 0:3 --out tests/data/replay_horizontal.json
 
 Flown: PD on the default vehicle (``EnvConfig()``), and the shipped policy of the sweep's regime
 wind-blind and wind-aware (in the env its checkpoint records), all on the same episodes with one

@@ -24,7 +24,7 @@ from quadwind_trl.evaluation.estimation import (
     turbulence_floor,
 )
 from quadwind_trl.estimator.metrics import (
-    Reference,
+    ConstantReference,
     component_rmse,
     direction_errors_deg,
     estimation_metrics,
@@ -294,7 +294,7 @@ def test_skill_scores_against_the_best_constant():
     assert m["reference_speed_rmse"] == pytest.approx(ref)
     assert m["speed_skill"] == pytest.approx(1 - speed_rmse / ref)
     # with another set's reference (breakdowns keep the whole set's constants)
-    r = Reference((0.0, 0.0), 0.0)
+    r = ConstantReference((0.0, 0.0), 0.0)
     m0 = estimation_metrics(PRED, TRUE, reference=r)
     assert m0["reference_vector_rmse"] == pytest.approx(math.sqrt((4 + 4 + 8 + 16) / 4))
 

@@ -48,6 +48,7 @@ from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
 from ..envs.scenarios import SCENARIO_FIELDS, RegimeRanges, cross_with_trajectories, sample_regimes
 from ..envs.trajectories import HORIZONTAL, VERTICAL, trajectory_names
+from ..regimes import HORIZONTAL_DATASET, VERTICAL_DATASET
 from ..estimator.features import RAW_RECORD_KEYS, raw_record_template
 
 Regime = Literal["horizontal", "vertical"]
@@ -85,7 +86,7 @@ class GenerationSpec:
     def regime_ranges(self) -> RegimeRanges:
         if self.ranges is not None:
             return self.ranges
-        return RegimeRanges() if self.regime == "horizontal" else RegimeRanges(altitude_m=None)
+        return HORIZONTAL_DATASET if self.regime == "horizontal" else VERTICAL_DATASET
 
     def scenarios(self) -> TensorDict:
         """``cases x trajectories`` scenarios, case-major, with ``case_id``."""

@@ -5,6 +5,7 @@
 * :mod:`.features`: the incremental feature extractor (one code path offline and online);
 * :mod:`.ring`: the per-sub-env online feature ring;
 * :mod:`.model`: the attention-GRU network; :mod:`.loss`: its training loss;
+* :mod:`.metrics`: the estimation metrics (training validates with them, the evaluation reports them);
 * :mod:`.checkpoint`: :class:`EstimatorBundle` (a trained network + standardisation, a
   ``WindEstimator``), the registry of network classes and the loaders of shipped checkpoints;
 * :mod:`.ema`: the spike-gated EMA post-filter (``DEFAULT_TAU_S``);

@@ -3,7 +3,7 @@
 A wind estimator reads a window of raw (unstandardised) 10 Hz features of one feature schema and
 returns the mean horizontal wind as (north, east) in m/s. The attention-GRU checkpoint
 (:class:`~quadwind_trl.estimator.checkpoint.EstimatorBundle`) is one; a model-based estimator is
-one more class with these four members, with no change to the transforms::
+one more class with these five members, with no change to the transforms::
 
     class MyEstimator:
         schema = "horizontal"                     # which FeatureExtractor builds its input

@@ -59,14 +59,14 @@ def per_flight_vector_rmse(pred: Tensor, true: Tensor, flight: Tensor) -> float:
 
 
 @dataclass(frozen=True)
-class Reference:
+class ConstantReference:
     """The best constant predictors of a set: its mean wind vector and its mean speed."""
 
     vector: tuple[float, float]
     speed: float
 
     @classmethod
-    def fit(cls, true: Tensor) -> "Reference":
+    def fit(cls, true: Tensor) -> "ConstantReference":
         t = to_float64(true)
         m = t.mean(0)
         return cls((float(m[0]), float(m[1])), float(t.norm(dim=-1).mean()))
@@ -90,7 +90,7 @@ def estimation_metrics(
     true: Tensor,
     flight: Tensor | None = None,
     altitude: Tensor | None = None,
-    reference: Reference | None = None,
+    reference: ConstantReference | None = None,
 ) -> dict[str, float]:
     """All scalar metrics of windows ``pred``/``true`` ``[W, 2]`` (m/s).
 
@@ -101,7 +101,7 @@ def estimation_metrics(
     w = pred.shape[0]
     if w == 0:
         return {"n_windows": 0}
-    ref = reference or Reference.fit(true)
+    ref = reference or ConstantReference.fit(true)
     rn, re = component_rmse(pred, true)
     sp, st = pred.norm(dim=-1), true.norm(dim=-1)
     ref_vec = torch.tensor(ref.vector, dtype=torch.float64).expand_as(true)

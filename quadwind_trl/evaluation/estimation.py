@@ -34,7 +34,7 @@ import torch
 from torch import Tensor
 
 from ..estimator.ema import EMAConfig, ema_scan
-from ..estimator.metrics import Reference, estimation_metrics, per_flight_vector_rmse, to_float64, vector_rmse
+from ..estimator.metrics import ConstantReference, estimation_metrics, per_flight_vector_rmse, to_float64, vector_rmse
 
 SPEED_BINS_M_S: tuple[float, ...] = (0.0, 4.0, 8.0, 12.0, 16.0, math.inf)  # paper
 ALTITUDE_BINS_M: tuple[float, ...] = (0.0, 150.0, 300.0, 450.0, math.inf)  # paper
@@ -107,11 +107,11 @@ def breakdown(
     names: Sequence[str],
     flight: Tensor | None = None,
     altitude: Tensor | None = None,
-    reference: Reference | None = None,
+    reference: ConstantReference | None = None,
 ) -> dict[str, dict[str, float]]:
     """``estimation_metrics`` of each group ``g`` (rows with ``group == g``), keyed ``names[g]``;
     empty groups are left out. Skill uses ``reference`` (default: fitted on all rows)."""
-    ref = reference or Reference.fit(true)
+    ref = reference or ConstantReference.fit(true)
     out = {}
     for g, name in enumerate(names):
         m = group == g
@@ -268,12 +268,12 @@ def evaluate_sequences(
     seq: FlightSequences,
     trajectory_names: Sequence[str],
     pred: Tensor | None = None,
-    reference: Reference | None = None,
+    reference: ConstantReference | None = None,
 ) -> dict:
     """Summary, and breakdowns by true wind speed, altitude band and trajectory, of ``seq`` (or
     of the override ``pred`` ``[n, L, 2]``, e.g. EMA-filtered)."""
     w = seq.windows(pred)
-    ref = reference or Reference.fit(w["true"])
+    ref = reference or ConstantReference.fit(w["true"])
     speed_bin = bin_index(w["true"].norm(dim=-1), SPEED_BINS_M_S)
     alt_bin = bin_index(w["altitude"], ALTITUDE_BINS_M)
     traj_ids = sorted(set(w["traj_id"].tolist()))
@@ -303,7 +303,7 @@ def ema_sweep(
     scanning each flight's sequence of estimates with ``ema_scan`` at ``dt = seq.dt_s``."""
     out = {}
     w = seq.windows()
-    ref = Reference.fit(w["true"])
+    ref = ConstantReference.fit(w["true"])
     for tau in taus_s:
         cfg = EMAConfig(
             tau_s=float(tau), dt_s=seq.dt_s, spike_factor=base.spike_factor,

@@ -38,6 +38,8 @@ def flight_sequences(estimator: WindEstimator, ed: EstimatorData, flights: Tenso
                      desc: str) -> FlightSequences:
     """The estimates along each of ``flights`` (dataset rows) every ``stride`` samples."""
     wd, rec = ed.windows, ed.data["record"]
+    if estimator.window != wd.window:
+        raise ValueError(f"the estimator reads {estimator.window}-sample windows, the dataset's windows are {wd.window} samples")
     pos = torch.as_tensor(rec["pos"])
     wind = torch.as_tensor(rec["wind"])
     t0 = time.perf_counter()

@@ -96,6 +96,10 @@ def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dic
     ``payload["vecnorm"]`` is the frozen normalisation to pass to ``make_env(...,
     vecnorm_state=...)``; ``payload["ppo_config"]`` / ``payload["env_spec"]`` describe the run."""
     payload = load_checkpoint(path, "policy", device)
+    saved = payload.get("observation_channels")
+    if saved is not None and list(saved) != list(OBSERVATION_CHANNELS):
+        raise ValueError(f"{path} was trained on another observation layout ({len(saved)} channels: {saved}); "
+                         f"this version's is keys.OBSERVATION_CHANNELS ({OBSERVATION_DIM} channels)")
     cfg = payload["ppo_config"]
     cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
     actor, _ = build_actor_critic(cfg)

@@ -207,8 +207,9 @@ class PPOTrainer:
         # the training env: a fresh seed per (resumed) segment so episodes do not repeat
         env = self.factory(seed=spec.seed + 7919 * progress.iteration,
                            desync_steps=episode_steps_hint(spec) if cfg.desync else 0)
-        if self.factory.bundle is not None:
-            learner.check_frozen(self.factory.bundle.model)
+        network = getattr(self.factory.bundle, "model", None)  # a WindEstimator need not be a network
+        if network is not None:
+            learner.check_frozen(network)
         if checkpoint is not None:
             load_vecnorm_state(env, checkpoint["vecnorm"])
         if self.curriculum is not None:

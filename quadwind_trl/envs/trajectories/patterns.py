@@ -58,7 +58,9 @@ class _PaperClimb(ClimbingPattern):
 
     @property
     def climb_rate(self) -> float:
-        name = next(n for n, cls in registered_patterns().items() if cls is type(self))
+        names = {cls: name for name, cls in registered_patterns().items()}
+        # the paper pattern this class is (or derives from: a user subclass keeps its rate)
+        name = next(names[cls] for cls in type(self).__mro__ if names.get(cls) in VERTICAL)
         return self.cfg.vertical_climb_rate_m_s[VERTICAL.index(name)]
 
 
