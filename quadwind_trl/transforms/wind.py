@@ -160,7 +160,10 @@ class WindEstimate(Transform):
         # Deliberately unsupported: the estimate needs each flight's feature window and EMA state,
         # which stored rows (``forward``'s input) do not carry. Offline estimates of whole flights
         # come from ``evaluation.estimation.predict_flights`` and ``estimator.ema.ema_scan``.
-        raise NotImplementedError("WindEstimate is stateful: use it inside a TransformedEnv")
+        raise NotImplementedError(  # by design, not a stub: stored rows carry no flight history
+            "WindEstimate is stateful: use it inside a TransformedEnv; for recorded flights use "
+            "evaluation.estimation.predict_flights and estimator.ema.ema_scan"
+        )
 
 
 class WindZero(Transform):
