@@ -43,11 +43,11 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     env = make_env("horizontal", bundle, n, desync_steps=episode_steps_hint(RLEnvSpec("horizontal")))
     base = env.base_env
     sim_time = [0.0]
-    raw_step = base._advance  # one control step (simulator + task), the env calls it hold times per step
+    raw_step = base._advance  # one held control step (simulator + task + merge), hold times per env step
 
-    def timed_step(params, state, action):
+    def timed_step(*args):
         t0 = time.perf_counter()
-        out = raw_step(params, state, action)
+        out = raw_step(*args)
         sim_time[0] += time.perf_counter() - t0
         return out
 

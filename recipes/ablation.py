@@ -20,11 +20,12 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.evaluation import figures
-from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, summarize_ablation
+from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, policy_compile_step, summarize_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.rl.policy import load_policy
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
 
 
@@ -39,6 +40,8 @@ def main() -> None:
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--eager", action="store_true",
+                        help="fly the simulator eagerly (default: as the policy trained, compiled unless it recorded otherwise)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     results_dir = args.results or Path("runs/quick/results" if args.quick else "results")
@@ -54,12 +57,13 @@ def main() -> None:
         policy_path = checkpoint("policy", regime, args.policy)
         estimator = load_estimator(regime, checkpoint("estimator", regime, args.estimator))
         scenarios, override = sweep_setup(sweep, args.quick)
+        compile_step = False if args.eager else policy_compile_step(load_policy(policy_path)[1])
         start = time.perf_counter()
         results = fly_controllers(regime, scenarios, policy_path, estimator, tuple(args.controllers), progress=True,
-                                  config_override=override)
+                                  config_override=override, compile_step=compile_step)
         summary = summarize_ablation(sweep, scenarios, results)
         summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
-                       estimator_manifest=estimator.manifest.get("metrics"), wall_time_s=time.perf_counter() - start)
+                       estimator_manifest=estimator.manifest.get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
         paths = figures.ablation_figures(name, scenarios, results, summary, fig_dir)
         aware = summary["rmse_xy"]["aware"]

@@ -27,8 +27,9 @@ QUICK = QuickFlights(pattern_s=10.0, vertical_top_m=15.0, vertical_hold_s=1.0)  
 
 
 def short_flights(regime: str) -> dict:
-    """make_env keywords for :data:`QUICK` flights, started at the pattern (a smoke run)."""
-    return {"config": QUICK.config(regime_config(regime)), "start": "pattern"}
+    """make_env keywords for :data:`QUICK` flights, started at the pattern, simulator eager (a smoke
+    run: compiling the step would cost more than flying it)."""
+    return {"config": QUICK.config(regime_config(regime)), "start": "pattern", "compile_step": False}
 
 
 def main() -> None:

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def _short(regime: str) -> dict:
     traj = replace(TrajectoryConfig(), horizontal_duration_s=2.0, vertical_top_m=10.0, vertical_hold_s=0.5)
-    return {"config": replace(regime_config(regime), trajectories=traj), "start": "pattern"}
+    return {"config": replace(regime_config(regime), trajectories=traj), "start": "pattern", "compile_step": False}
 
 
 @pytest.mark.parametrize("regime", ["horizontal", "vertical"])

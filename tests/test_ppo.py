@@ -30,7 +30,7 @@ def hover_spec(seed: int = 0, duration_s: float = 3.0) -> RLEnvSpec:
     cfg = replace(cfg, trajectories=replace(cfg.trajectories, hover_duration_s=duration_s))
     ranges = replace(DEFAULT_RANGES["horizontal"], altitude_m=(10.0, 10.0))
     return RLEnvSpec("horizontal", untrained_estimator=True, config=cfg, start="pattern", trajectories=("hover",),
-                     ranges=ranges, seed=seed)  # fmt: skip
+                     ranges=ranges, seed=seed, compile_step=False)  # fmt: skip
 
 
 def test_estimator_gets_no_gradient_and_stays_unchanged_through_a_ppo_update():
@@ -42,7 +42,7 @@ def test_estimator_gets_no_gradient_and_stays_unchanged_through_a_ppo_update():
     bundle = untrained_estimator("horizontal", seed=3)
     before = {k: v.clone() for k, v in bundle.model.state_dict().items()}
     spec = hover_spec()
-    env = make_env("horizontal", bundle, 4, config=spec.config, start="pattern", trajectories=("hover",), ranges=spec.ranges)
+    env = make_env("horizontal", bundle, 4, config=spec.config, start="pattern", trajectories=("hover",), ranges=spec.ranges, compile_step=False)
     cfg = PPOConfig(hidden=(32, 32))
     actor, value = build_actor_critic(cfg)
     loss = ClipPPOLoss(actor, value, clip_epsilon=0.2, entropy_coeff=0.005, critic_coeff=0.5, loss_critic_type="l2")
@@ -100,7 +100,7 @@ def test_trainer_checkpoints_resumes_and_exports(tmp_path):
 
     # the exported policy + frozen normalisation fly deterministic evaluations
     actor, payload = load_policy(out / "policy.pt")
-    env = make_env("horizontal", untrained_estimator("horizontal"), 1, config=spec.config, vecnorm_state=payload["vecnorm"])
+    env = make_env("horizontal", untrained_estimator("horizontal"), 1, config=spec.config, vecnorm_state=payload["vecnorm"], compile_step=False)
     assert vecnorm(env).frozen
     loc = vecnorm(env).loc["observation"].clone()
     r = fly(env, sc, policy=actor)
@@ -158,7 +158,7 @@ def easy_spec(seed: int) -> RLEnvSpec:
                           shear_alpha=(0.15, 0.15), veer_deg_per_100m=(0.0, 0.0), length_scale_m=(150.0, 150.0),
                           altitude_m=(10.0, 10.0))
     return RLEnvSpec("horizontal", untrained_estimator=True, config=cfg, start="pattern", trajectories=("hover",),
-                     ranges=ranges, seed=seed)  # fmt: skip
+                     ranges=ranges, seed=seed, compile_step=False)  # fmt: skip
 
 
 @pytest.mark.slow

@@ -94,7 +94,7 @@ def test_heading_frame_by_hand():
 
 @pytest.mark.parametrize("wind_input", ["estimate", "zero", "truth"])
 def test_transformed_env_passes_check_env_specs(bundle, wind_input):
-    env = make_env("horizontal", bundle, 3, wind_input=wind_input, config=short_config(), desync_steps=5)
+    env = make_env("horizontal", bundle, 3, wind_input=wind_input, config=short_config(), desync_steps=5, compile_step=False)
     check_env_specs(env)
     assert env.observation_spec["observation"].shape == (3, OBSERVATION_DIM)
     assert env.observation_spec["wind_hat"].shape == (3, 2)
@@ -102,10 +102,10 @@ def test_transformed_env_passes_check_env_specs(bundle, wind_input):
 
 def test_vertical_env_and_schema_mismatch(bundle):
     vb = untrained_estimator("vertical", config=short_config(0.5))
-    env = make_env("vertical", vb, 2, config=short_config(0.5))
+    env = make_env("vertical", vb, 2, config=short_config(0.5), compile_step=False)
     check_env_specs(env)
     with pytest.raises(ValueError, match="schema"):
-        make_env("vertical", bundle, 2)
+        make_env("vertical", bundle, 2, compile_step=False)
 
 
 def test_each_transform_alone(bundle):
@@ -221,7 +221,7 @@ def test_history_and_ema_reset_only_masked_rows(bundle):
 
 
 def test_estimator_is_frozen_and_outside_parameters(bundle):
-    env = make_env("horizontal", bundle, 2, config=short_config())
+    env = make_env("horizontal", bundle, 2, config=short_config(), compile_step=False)
     west = wind_estimate(env)
     assert list(west.parameters()) == [] and list(env.transform.parameters()) == []
     assert not any("gru" in k or "head" in k for k in env.state_dict())
@@ -233,7 +233,7 @@ def test_wind_zero_zeroes_exactly_the_wind_inputs(bundle):
     """Same scenarios, same (zero) actions: the ablation env's observation differs from the
     wind-aware one in channels 13, 14 only, which are exactly 0 (after normalisation)."""
     cfg = short_config()
-    envs = {w: make_env("horizontal", bundle, 3, wind_input=w, config=cfg) for w in ("estimate", "zero")}
+    envs = {w: make_env("horizontal", bundle, 3, wind_input=w, config=cfg, compile_step=False) for w in ("estimate", "zero")}
     obs = {}
     for w, env in envs.items():
         td = env.reset(scenario=scenarios(3))
@@ -292,7 +292,7 @@ def test_zero_policy_reproduces_pd(bundle):
     with torch.no_grad():
         last.weight.zero_()
         last.bias.zero_()
-    env = make_env("horizontal", bundle, 3, config=cfg)
+    env = make_env("horizontal", bundle, 3, config=cfg, compile_step=False)
     rl = fly(env, sc, policy=actor)
     assert torch.equal(rl.rmse_xy, pd.rmse_xy) and torch.equal(rl.rmse_z, pd.rmse_z)
     assert torch.equal(pack_channels(rl.log[MEAS_KEY]), pack_channels(pd.log[MEAS_KEY]))
@@ -318,7 +318,7 @@ def test_running_norm_never_returns_nan():
 
 
 def test_vecnorm_pools_rows_and_freezes(bundle):
-    env = make_env("horizontal", bundle, 4, config=short_config())
+    env = make_env("horizontal", bundle, 4, config=short_config(), compile_step=False)
     vn = vecnorm(env)
     r = env.rollout(20, break_when_any_done=False)
     assert torch.isfinite(r["observation"]).all() and torch.isfinite(r["next", "observation"]).all()
@@ -328,7 +328,7 @@ def test_vecnorm_pools_rows_and_freezes(bundle):
     env.rollout(5, break_when_any_done=False)
     assert torch.equal(loc, vn.loc["observation"])
     state = {k: v for k, v in vn.state_dict().items()}
-    env2 = make_env("horizontal", bundle, 4, config=short_config(), vecnorm_state=state)
+    env2 = make_env("horizontal", bundle, 4, config=short_config(), vecnorm_state=state, compile_step=False)
     assert vecnorm(env2).frozen and torch.allclose(vecnorm(env2).loc["observation"], loc)
 
 
@@ -376,7 +376,7 @@ def test_a_new_estimator_class_drives_wind_estimate():
     cfg = short_config()
     est = ConstantEstimator((3.0, -4.0), cfg)
     assert isinstance(est, WindEstimator)
-    env = make_env("horizontal", est, 2, config=cfg, ema_tau_s=1.5)
+    env = make_env("horizontal", est, 2, config=cfg, ema_tau_s=1.5, compile_step=False)
     check_env_specs(env)
     west = wind_estimate(env)
     assert west.ring.window == 5 and west.ema_config.tau_s == 1.5
@@ -397,14 +397,14 @@ def test_policy_ema_tau_s_falls_back_to_the_estimator_checkpoint(bundle):
     assert policy_ema_tau_s({"ema_tau_s": 2.0}, bundle) == 2.0
     assert policy_ema_tau_s({}, replace(bundle, ema_tau_s=4.5)) == 4.5
     assert policy_ema_tau_s({}, bundle) == DEFAULT_TAU_S  # no tau in the checkpoint
-    assert make_env("horizontal", bundle, 1, config=short_config()).transform[1].ema_config.tau_s == DEFAULT_TAU_S
+    assert make_env("horizontal", bundle, 1, config=short_config(), compile_step=False).transform[1].ema_config.tau_s == DEFAULT_TAU_S
     for regime in ("horizontal", "vertical"):
         spec = load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["env_spec"]
         assert "ema_tau_s" not in spec
         assert policy_ema_tau_s(spec, load_estimator(regime)) == 3.0
     with pytest.raises(ValueError, match="ema_tau_s"):
-        make_env("horizontal", bundle, 1, ema_tau_s=-1.0)
+        make_env("horizontal", bundle, 1, ema_tau_s=-1.0, compile_step=False)
     with pytest.raises(TypeError, match="unknown settings"):
-        make_env("horizontal", bundle, 1, ema_tau=3.0)
+        make_env("horizontal", bundle, 1, ema_tau=3.0, compile_step=False)
     with pytest.raises(TypeError, match=r"not a WindEstimator \(missing \['window'"):
         WindEstimate(type("NoWindow", (), {"schema": "horizontal", "channels": (), "predict": None, "to": None})())

@@ -135,7 +135,7 @@ class QuadWindEnv(EnvBase):
             if missing:
                 raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
         self.task = task if task is not None else TrackingTask(self.config)
-        self._advance = torch.compile(self._control_step, dynamic=False) if compile_step else self._control_step
+        self._advance = torch.compile(self._held_control_step, dynamic=False) if compile_step else self._held_control_step
         self.params: TensorDict | None = None
         self.state: TensorDict | None = None
         self._make_specs()
@@ -187,28 +187,37 @@ class QuadWindEnv(EnvBase):
         out.update(self.full_done_spec.zero())
         return out
 
-    def _control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor):
-        """One control step and the task's view of it: ``(state, reward, terminated, truncated)``."""
+    def _held_control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor, reward: torch.Tensor,
+                           steps: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor):
+        """One control step of a held action, with the task's view of it, merged branch-free into
+        the decision's running totals ``(state, reward sum, steps, terminated, truncated)``: a row
+        whose episode ended earlier in the hold keeps its state and totals. Step and merge are one
+        function so that, compiled, they are one graph (no eager merge of every state leaf per
+        control step); the params do not change within an episode and are not merged."""
+        running = ~(terminated | truncated)
         new = self.sim.step(params, state, action)
-        terminated, truncated = self.task.done(params, new)
-        return new, self.task.step_reward(params, state, new), terminated, truncated
+        new_terminated, new_truncated = self.task.done(params, new)
+        new_reward = self.task.step_reward(params, state, new)
+        return (
+            new.where(running.reshape(-1), state),
+            reward + torch.where(running, new_reward, 0.0),
+            steps + running.to(steps.dtype),
+            torch.where(running, new_terminated, terminated),
+            torch.where(running, new_truncated, truncated),
+        )
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action", None)
         check_action(action, self.batch_size[0], 4)
-        params = self.params
-        state, reward, terminated, truncated = self._advance(params, self.state, action)
-        steps = torch.ones_like(reward)
-        # a held action: rows that end inside the hold stay frozen at their last state (a
-        # branch-free merge of the dynamic state only: the params do not change within an episode)
-        for _ in range(self.config.timing.hold_control_steps - 1):
-            running = ~(terminated | truncated)
-            new, new_reward, new_terminated, new_truncated = self._advance(params, state, action)
-            state = new.where(running.reshape(-1), state)
-            reward = reward + torch.where(running, new_reward, 0.0)
-            steps = steps + running.to(steps.dtype)
-            terminated = torch.where(running, new_terminated, terminated)
-            truncated = torch.where(running, new_truncated, truncated)
+        n, dev = self.batch_size[0], self.device
+        state = self.state
+        reward = torch.zeros(n, 1, device=dev)
+        steps = torch.zeros(n, 1, device=dev)
+        terminated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
+        truncated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
+        for _ in range(self.config.timing.hold_control_steps):
+            state, reward, steps, terminated, truncated = self._advance(
+                self.params, state, action, reward, steps, terminated, truncated)
         self.state = state
         out = self._observation(state)
         out.set("reward", self.task.decision_reward(reward / steps, terminated))

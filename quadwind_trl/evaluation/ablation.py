@@ -42,6 +42,12 @@ def policy_env_config(payload: dict) -> EnvConfig:
     return config_from_dict(EnvConfig, payload["env_spec"]["env_config"])
 
 
+def policy_compile_step(payload: dict) -> bool:
+    """Whether the policy trained on the compiled simulator step (its checkpoint's env spec;
+    policies saved before the RL stack compiled by default trained eagerly)."""
+    return bool(payload["env_spec"].get("compile_step", False))
+
+
 def fly_controllers(
     regime: str,
     scenarios: TensorDictBase,
@@ -52,21 +58,25 @@ def fly_controllers(
     progress: bool = False,
     device: str = "cpu",
     config_override: Callable[[EnvConfig], EnvConfig] | None = None,
+    compile_step: bool | None = None,
 ) -> dict[str, FlightResults]:
     """Fly ``scenarios`` with each controller (:func:`~quadwind_trl.rl.paired.fly_paired`);
     results per controller, in scenario order.
 
     The env is the one the policy trained in (its config is in the checkpoint), unless
-    ``config_override`` changes it (e.g. shorter flights for smoke runs)."""
+    ``config_override`` changes it (e.g. shorter flights for smoke runs). ``compile_step``
+    (default: :func:`policy_compile_step`) chooses the compiled or the eager simulator step."""
     actor, payload = load_policy(policy_path, device=device)
     config = policy_env_config(payload)
+    if compile_step is None:
+        compile_step = policy_compile_step(payload)
     if config_override is not None:
         config = config_override(config)
     n = batch or scenarios.batch_size[0]
     flights = {
         name: (make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
                         device=device, config=config, vecnorm_state=payload["vecnorm"],
-                        ema_tau_s=policy_ema_tau_s(payload["env_spec"], estimator)),
+                        ema_tau_s=policy_ema_tau_s(payload["env_spec"], estimator), compile_step=compile_step),
                None if name == "pd" else actor)
         for name in controllers
     }

@@ -43,7 +43,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--device", default="cpu")
+    p.add_argument("--device", default="cpu", help="torch device of the simulator, estimator and networks (cpu, cuda, ...)")
+    p.add_argument("--eager", action="store_true",
+                   help="fly the simulator eagerly instead of through torch.compile (the default: compiled; --quick is eager)")
     p.add_argument("--wind-input", default="estimate", choices=["estimate", "zero", "truth"],
                    help="what the policy's wind channels carry during training (paper: estimate)")
     p.add_argument("--eval-every", type=int, default=None,
@@ -62,12 +64,14 @@ def quick_setup(regime: str, spec: RLEnvSpec) -> tuple[RLEnvSpec, PPOConfig, lis
     """The ``--quick`` run: the regime's short flights (:data:`~quadwind_trl.quick.PPO_QUICK`),
     8 envs, 4 tiny iterations."""
     quick = PPO_QUICK[regime]
-    spec = replace(spec, config=quick.config(spec.env_config), ranges=quick.ranges(DEFAULT_RANGES[regime]), num_envs=8)
+    spec = replace(spec, config=quick.config(spec.env_config), ranges=quick.ranges(DEFAULT_RANGES[regime]), num_envs=8,
+                   compile_step=False)
     cfg = PPOConfig(total_frames=4 * 8 * 32, num_envs=8, steps_per_env=32, epochs=2, minibatch=128,
                     eval_every_frames=0, checkpoint_every_frames=2 * 8 * 32)
     changes = [
         f"flights: {quick.describe()}",
         "PPO: 8 envs x 32 steps, 4 iterations, 2 epochs, minibatch 128; evaluation: 1 episode from the pattern start",
+        "simulator eager (compiling would cost more than the whole run)",
     ]
     return spec, cfg, changes
 
@@ -78,7 +82,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     torch.set_num_threads(args.threads)
     spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                      estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                     config=with_sensing(regime_config(regime), args.sensing))
+                     config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager)
     if args.quick:
         spec, cfg, changes = quick_setup(regime, spec)
         print("--quick changes from the full run:")
