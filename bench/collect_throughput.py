@@ -6,7 +6,8 @@ collection (transforms, policy, collector), and the PPO update on the collected 
     python bench/collect_throughput.py --sizes 64 --threads 2
 
 Setup: the horizontal training env (``make_env``: ground starts, first-episode de-synchronisation,
-the full transform stack), the TanhNormal 2x256 actor in RANDOM mode, TorchRL ``Collector``; the
+the full transform stack, the compiled simulator step unless ``--eager``; one warm-up batch pays
+the compilation), the TanhNormal 2x256 actor in RANDOM mode, TorchRL ``Collector``; the
 estimator is the shipped one if present, else an untrained one of the same architecture (same cost).
 Each size runs one warm-up batch, then ``--batches`` timed batches of ``N x --steps`` frames
 (``--steps`` a multiple of 10, so every row ticks the estimator equally often), each followed, as in
@@ -26,7 +27,12 @@ import torch
 from machine import load_1min, machine_line
 
 
-def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dict:
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def measure(n: int, steps: int, batches: int, estimator_path: str | None, compile_step: bool, device: str) -> dict:
     from torchrl.collectors import Collector
     from torchrl.envs.utils import ExplorationType
 
@@ -39,15 +45,19 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
 
     torch.manual_seed(0)
     path = estimator_path or (str(default_estimator_path("horizontal")) if default_estimator_path("horizontal").exists() else None)
-    bundle = load_estimator("horizontal", path, untrained=path is None)
-    env = make_env("horizontal", bundle, n, desync_steps=episode_steps_hint(RLEnvSpec("horizontal")))
+    bundle = load_estimator("horizontal", path, untrained=path is None, device=device)
+    env = make_env("horizontal", bundle, n, desync_steps=episode_steps_hint(RLEnvSpec("horizontal")),
+                   compile_step=compile_step, device=device)
+    dev = torch.device(device)
     base = env.base_env
     sim_time = [0.0]
     raw_step = base._advance  # one held control step (simulator + task + merge), hold times per env step
 
     def timed_step(*args):
+        _sync(dev)
         t0 = time.perf_counter()
         out = raw_step(*args)
+        _sync(dev)
         sim_time[0] += time.perf_counter() - t0
         return out
 
@@ -57,13 +67,16 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     raw_tick = west._tick
 
     def timed_tick(record, mask):
+        _sync(dev)
         t0 = time.perf_counter()
         raw_tick(record, mask)
+        _sync(dev)
         tick_time[0] += time.perf_counter() - t0
 
     west._tick = timed_tick
     cfg = PPOConfig()
     actor, value = build_actor_critic(cfg)
+    actor, value = actor.to(dev), value.to(dev)
     collector = Collector(env, actor, frames_per_batch=n * steps, total_frames=n * steps * (batches + 1),
                           exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
     learner = PPOUpdate(actor, value, cfg)  # the trainer's update: GAE + epochs of minibatch ClipPPO steps
@@ -90,6 +103,8 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None) -> dic
     return {
         "N": n,
         "steps": steps,
+        "compile": compile_step,
+        "device": device,
         "threads": torch.get_num_threads(),
         "env_steps_per_s": round(frames / collect_s),
         "collect_s": round(collect_s, 2),
@@ -115,13 +130,15 @@ def main() -> None:
     parser.add_argument("--batches", type=int, default=2, help="timed batches per size")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--estimator", default=None, help="estimator checkpoint (default: shipped, else untrained)")
+    parser.add_argument("--eager", action="store_true", help="the eager simulator step (default: compiled, as the RL stack)")
+    parser.add_argument("--device", default="cpu")
     args = parser.parse_args()
     if args.steps % 10:
         parser.error("--steps must be a multiple of 10 (the estimator ticks every 10 control steps)")
     torch.set_num_threads(args.threads)
     print(machine_line(args.threads), flush=True)
     for n in args.sizes:
-        r = measure(n, args.steps, args.batches, args.estimator)
+        r = measure(n, args.steps, args.batches, args.estimator, not args.eager, args.device)
         print("collect_throughput " + " ".join(f"{k}={v}" for k, v in r.items()), flush=True)
 
 

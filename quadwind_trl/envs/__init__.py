@@ -11,6 +11,7 @@ Frames and conventions, fixed once for the whole project:
 * **Time**: physics at 500 Hz, control at 100 Hz (one env step, or `TimingConfig.hold_control_steps` of them), flight record at 10 Hz; the
   integer control-step counter is the clock (``t = step * 0.01 s``).
 """
+from .parallel import parallel_env
 from .quad_env import QuadWindEnv, ScenarioSampler
 from .scenarios import RegimeRanges, make_scenarios, sample_regimes
 from .simulator import QuadSimulator
@@ -30,6 +31,7 @@ from .trajectories import (
 __all__ = [
     "QuadWindEnv",
     "ScenarioSampler",
+    "parallel_env",
     "QuadSimulator",
     "RegimeRanges",
     "make_scenarios",

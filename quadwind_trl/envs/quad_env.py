@@ -122,10 +122,16 @@ class QuadWindEnv(EnvBase):
         seed: int = 0,
         compile_step: bool = False,
         task: Task | None = None,
+        first_row: int = 0,
     ):
         batch_size = torch.Size(batch_size)
         if len(batch_size) != 1:
             raise ValueError(f"QuadWindEnv takes a 1-D batch_size [N], got {list(batch_size)}")
+        if first_row < 0:
+            raise ValueError(f"QuadWindEnv.first_row={first_row}; allowed: >= 0")
+        # this env's rows are rows first_row, first_row + 1, ... of a larger batch (one worker of
+        # envs.parallel): each row's episodes are drawn from its global row index
+        self._first_row = int(first_row)
         super().__init__(device=device if device is not None else "cpu", batch_size=batch_size)
         self.config = (config or EnvConfig()).validate()
         self.sim = QuadSimulator(self.config, self.device)
@@ -161,7 +167,7 @@ class QuadWindEnv(EnvBase):
     def _set_seed(self, seed: int | None) -> None:
         seed = 0 if seed is None else int(seed)
         n = self.batch_size[0]
-        self._row_keys = seed * 1_000_003 + torch.arange(n, device=self.device, dtype=torch.int64)
+        self._row_keys = seed * 1_000_003 + self._first_row + torch.arange(n, device=self.device, dtype=torch.int64)
         self._episode_count = torch.zeros(n, dtype=torch.int64, device=self.device)
 
     def _reset(self, tensordict: TensorDictBase | None = None, scenario: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
