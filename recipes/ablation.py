@@ -4,15 +4,20 @@ replayed episodes of the paper's evaluation sweeps; tables (JSON) and figures.
     python recipes/ablation.py                                   # horizontal 225, vertical 144, OOD 90
     python recipes/ablation.py --sweeps horizontal --policy runs/ppo_horizontal/policy.pt
     python recipes/ablation.py --quick                           # small subsets, short flights
+    python recipes/ablation.py --verify results/ablation_horizontal.json --episodes 0:45
 
 By default the shipped checkpoints are used (``quadwind_trl/checkpoints/policy_<regime>.pt`` and
 ``estimator_<regime>.pt``). Writes ``results/ablation_<sweep>.json`` and ``docs/figures/*.png``
 (``--quick``: under ``runs/quick/``); ``python recipes/report.py`` renders them into
-docs/results.md.
+docs/results.md. ``--verify FILE`` writes nothing: it re-flies ``--episodes`` of a results file
+exactly as the file records them (sweep, controllers, policy, estimator, flights, simulator) and
+reports, per controller, how many per-episode values agree to the bit (exit status 1 if any
+differs).
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -21,6 +26,7 @@ import torch
 
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, policy_compile_step, summarize_ablation
+from quadwind_trl.evaluation.replay import verify_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
@@ -40,10 +46,15 @@ def main() -> None:
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--verify", type=Path, default=None, help="re-fly --episodes of this results file and compare")
+    parser.add_argument("--episodes", default=None, help="with --verify: START:STOP of the sweep's episodes (default all)")
     parser.add_argument("--eager", action="store_true",
                         help="fly the simulator eagerly (default: as the policy trained, compiled unless it recorded otherwise)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    if args.verify is not None:
+        verify(args)
+        return
     results_dir = args.results or Path("runs/quick/results" if args.quick else "results")
     fig_dir = args.figures or Path("runs/quick/figures" if args.quick else "docs/figures")
 
@@ -63,6 +74,7 @@ def main() -> None:
                                   config_override=override, compile_step=compile_step)
         summary = summarize_ablation(sweep, scenarios, results)
         summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
+                       estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick,
                        estimator_manifest=estimator.manifest.get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
         paths = figures.ablation_figures(name, scenarios, results, summary, fig_dir)
@@ -70,6 +82,19 @@ def main() -> None:
         print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD, xy RMSE reduction: "
               f"{aware['improvement']:.1f} % (95 % CI {aware['ci_low']:.1f}-{aware['ci_high']:.1f}), "
               f"wins {aware['wins']}/{aware['n']}; figures: {', '.join(str(p) for p in paths)}")
+
+
+def verify(args: argparse.Namespace) -> None:
+    results = json.loads(args.verify.read_text())
+    start, stop = (int(x) for x in args.episodes.split(":")) if args.episodes else (0, results["episodes"])
+    t0 = time.perf_counter()
+    agreement = verify_ablation(results, slice(start, stop))
+    print(f"{args.verify} ({results['sweep']}, recorded at {results['git_commit']}), episodes {start}:{stop}, "
+          f"{'compiled' if results.get('compile_step') else 'eager'}, {time.perf_counter() - t0:.0f} s:")
+    for name, (same, total) in agreement.items():
+        print(f"  {name}: {same}/{total} values bit-identical")
+    if any(same != total for same, total in agreement.values()):
+        sys.exit(1)
 
 
 if __name__ == "__main__":
