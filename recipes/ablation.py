@@ -4,15 +4,18 @@ replayed episodes of the paper's evaluation sweeps; tables (JSON) and figures.
     python recipes/ablation.py                                   # horizontal 225, vertical 144, OOD 90
     python recipes/ablation.py --sweeps horizontal --policy runs/ppo_horizontal/policy.pt
     python recipes/ablation.py --quick                           # small subsets, short flights
-    python recipes/ablation.py --verify results/ablation_horizontal.json --episodes 0:45
+    python recipes/ablation.py --sweeps horizontal --batch 45          # five batches of 45 episodes
+    python recipes/ablation.py --verify results/ablation_horizontal.json --chunks 0:1
 
 By default the shipped checkpoints are used (``quadwind_trl/checkpoints/policy_<regime>.pt`` and
 ``estimator_<regime>.pt``). Writes ``results/ablation_<sweep>.json`` and ``docs/figures/*.png``
 (``--quick``: under ``runs/quick/``); ``python recipes/report.py`` renders them into
-docs/results.md. ``--verify FILE`` writes nothing: it re-flies ``--episodes`` of a results file
-exactly as the file records them (sweep, controllers, policy, estimator, flights, simulator) and
-reports, per controller, how many per-episode values agree to the bit (exit status 1 if any
-differs).
+docs/results.md. ``--batch B`` flies B episodes at a time (default: the whole sweep in one batch,
+the fastest), recorded in the file. ``--verify FILE`` writes nothing: it re-flies batches
+``--chunks A:B`` of a results file exactly as the file records them (sweep, controllers, policy,
+estimator, flights, simulator, batch layout) and reports, per controller, how many per-episode
+values agree to the bit (exit status 1 if any differs). A batch is the unit because only the
+recorded layout replays bit for bit (``evaluation.replay.verify_ablation``).
 """
 from __future__ import annotations
 
@@ -46,8 +49,9 @@ def main() -> None:
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--verify", type=Path, default=None, help="re-fly --episodes of this results file and compare")
-    parser.add_argument("--episodes", default=None, help="with --verify: START:STOP of the sweep's episodes (default all)")
+    parser.add_argument("--batch", type=int, default=None, help="episodes flown at once (default: the whole sweep)")
+    parser.add_argument("--verify", type=Path, default=None, help="re-fly --chunks of this results file and compare")
+    parser.add_argument("--chunks", default=None, help="with --verify: batches START:STOP of the file's layout (default all)")
     parser.add_argument("--eager", action="store_true",
                         help="fly the simulator eagerly (default: as the policy trained, compiled unless it recorded otherwise)")
     args = parser.parse_args()
@@ -70,11 +74,12 @@ def main() -> None:
         scenarios, override = sweep_setup(sweep, args.quick)
         compile_step = False if args.eager else policy_compile_step(load_policy(policy_path)[1])
         start = time.perf_counter()
-        results = fly_controllers(regime, scenarios, policy_path, estimator, tuple(args.controllers), progress=True,
-                                  config_override=override, compile_step=compile_step)
+        batch = min(args.batch or scenarios.batch_size[0], scenarios.batch_size[0])
+        results = fly_controllers(regime, scenarios, policy_path, estimator, tuple(args.controllers), batch=batch,
+                                  progress=True, config_override=override, compile_step=compile_step)
         summary = summarize_ablation(sweep, scenarios, results)
         summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
-                       estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick,
+                       estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
                        estimator_manifest=estimator.manifest.get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
         paths = figures.ablation_figures(name, scenarios, results, summary, fig_dir)
@@ -86,10 +91,12 @@ def main() -> None:
 
 def verify(args: argparse.Namespace) -> None:
     results = json.loads(args.verify.read_text())
-    start, stop = (int(x) for x in args.episodes.split(":")) if args.episodes else (0, results["episodes"])
+    chunks = range(*(int(x) for x in args.chunks.split(":"))) if args.chunks else None
     t0 = time.perf_counter()
-    agreement = verify_ablation(results, slice(start, stop))
-    print(f"{args.verify} ({results['sweep']}, recorded at {results['git_commit']}), episodes {start}:{stop}, "
+    agreement, episodes = verify_ablation(results, chunks)
+    batch = results.get("batch", results["episodes"])
+    print(f"{args.verify} ({results['sweep']}, recorded at {results['git_commit']}), batches of {batch}: "
+          f"{'all' if chunks is None else f'{chunks.start}:{chunks.stop}'} ({episodes} episodes), "
           f"{'compiled' if results.get('compile_step') else 'eager'}, {time.perf_counter() - t0:.0f} s:")
     for name, (same, total) in agreement.items():
         print(f"  {name}: {same}/{total} values bit-identical")

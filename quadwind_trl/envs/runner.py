@@ -76,6 +76,7 @@ def iter_flights(
     log_keys: Sequence[NestedKey] = DEFAULT_LOG_KEYS,
     progress: bool | None = None,
     skip: Tensor | None = None,
+    chunks: range | None = None,
 ) -> Iterator[FlightResults]:
     """Fly ``scenarios`` (batch ``[M]``) in chunks of the env's batch size, longest first.
 
@@ -87,6 +88,8 @@ def iter_flights(
     ``AUTO_PROGRESS_DELAY_S``; ``True`` at once; ``False`` never).
     ``skip`` (bool ``[M]``): flights already flown; a chunk of only those is not flown again (the
     chunks depend only on the scenarios and the batch size, so a resumed run meets the same ones).
+    ``chunks``: fly only the chunks of these indices (in flying order), each exactly as in a full
+    run: a batch's flights replay bit for bit only within the same batch.
     """
     base = _base(env)
     validate_scenarios(scenarios)
@@ -99,12 +102,12 @@ def iter_flights(
         raise ValueError(f"scenario start_step must be a multiple of the {log_every}-step log interval")
     planned = (end_step - start).cpu()
     order = torch.argsort(planned, descending=True, stable=True)
-    chunks = order.split(n_env)
+    batches = order.split(n_env)
     # progress=None: a bar only once the work has taken a few seconds (quick calls stay quiet)
     bar = tqdm(total=int(planned.sum()), unit="step", unit_scale=True, disable=progress is False, desc="flights",
                delay=0.0 if progress else AUTO_PROGRESS_DELAY_S)
-    for chunk in chunks:
-        if skip is not None and bool(skip[chunk].all()):
+    for k, chunk in enumerate(batches):
+        if (skip is not None and bool(skip[chunk].all())) or (chunks is not None and k not in chunks):
             bar.update(int(planned[chunk].sum()))
             continue
         rows = torch.cat((chunk, chunk[-1:].expand(n_env - chunk.numel()))) if chunk.numel() < n_env else chunk
@@ -115,9 +118,10 @@ def iter_flights(
 
 
 def fly(env: EnvBase, scenarios: TensorDictBase, policy: Policy | None = None, **options) -> FlightResults:
-    """All flights of :func:`iter_flights` (``options``: its ``log_keys``, ``progress``), in the
-    order of ``scenarios``; records are padded to the longest flight (``log["valid"]`` marks real
-    samples)."""
+    """All flights of :func:`iter_flights` (``options``: its ``log_keys``, ``progress``, ``skip``,
+    ``chunks``), in the order of ``scenarios`` (with ``skip`` or ``chunks``, only the flights flown:
+    ``index`` holds their rows); records are padded to the longest flight (``log["valid"]`` marks
+    real samples)."""
     parts = list(iter_flights(env, scenarios, policy, **options))
     length = max(p.log.batch_size[1] for p in parts)
     logs = []

@@ -59,13 +59,15 @@ def fly_controllers(
     device: str = "cpu",
     config_override: Callable[[EnvConfig], EnvConfig] | None = None,
     compile_step: bool | None = None,
+    chunks: range | None = None,
 ) -> dict[str, FlightResults]:
     """Fly ``scenarios`` with each controller (:func:`~quadwind_trl.rl.paired.fly_paired`);
     results per controller, in scenario order.
 
     The env is the one the policy trained in (its config is in the checkpoint), unless
     ``config_override`` changes it (e.g. shorter flights for smoke runs). ``compile_step``
-    (default: :func:`policy_compile_step`) chooses the compiled or the eager simulator step."""
+    (default: :func:`policy_compile_step`) chooses the compiled or the eager simulator step.
+    ``batch`` episodes fly at once (default: all); ``chunks`` flies only those batches."""
     actor, payload = load_policy(policy_path, device=device)
     config = policy_env_config(payload)
     if compile_step is None:
@@ -80,7 +82,7 @@ def fly_controllers(
                None if name == "pd" else actor)
         for name in controllers
     }
-    return fly_paired(flights, scenarios, log_keys=TRACE_KEYS, progress=progress)
+    return fly_paired(flights, scenarios, log_keys=TRACE_KEYS, progress=progress, chunks=chunks)
 
 
 def _episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults]) -> TensorDict:

@@ -53,17 +53,19 @@ def fly_paired(
     scenarios: TensorDictBase,
     log_keys: Sequence[NestedKey] = ("step",),
     progress: bool | None = False,
+    chunks: range | None = None,
 ) -> dict[str, FlightResults]:
     """Deterministic flights of ``scenarios`` by each ``name: (env, policy)`` of ``flights``, in
     that order, normalisation frozen; results per name, rows in scenario order. The envs must have
-    the same batch size for the episodes to be bitwise the same worlds."""
+    the same batch size for the episodes to be bitwise the same worlds. ``chunks``: only these
+    batches of the flight order (:func:`~quadwind_trl.envs.runner.iter_flights`)."""
     sizes = {name: env.batch_size[0] for name, (env, _) in flights.items()}
     if len(set(sizes.values())) > 1:
         raise ValueError(f"fly_paired: envs of one batch size replay identical episodes; got batch sizes {sizes}")
     out = {}
     for name, (env, policy) in flights.items():
         with frozen_normalisation(env):
-            out[name] = fly(env, scenarios, policy=policy, log_keys=log_keys, progress=progress)
+            out[name] = fly(env, scenarios, policy=policy, log_keys=log_keys, progress=progress, chunks=chunks)
     return out
 
 
