@@ -1,5 +1,5 @@
 """Exact replay: records of per-episode RMSEs of a sweep slice as ``float.hex`` strings, and the
-check of an ablation results file against a re-flown slice (:func:`verify_ablation`).
+check of an ablation results file against its re-flown batches (:func:`verify_ablation`).
 
 A record pins PD on the default vehicle and the shipped policy (wind-blind and wind-aware) of the
 sweep's regime on the same episodes, flown in one batch of the slice's size. A change that claims
@@ -53,7 +53,7 @@ def verify_ablation(results: dict, chunks: range | None = None, policy_path=None
 
     Only the recorded layout replays: the simulator's rows do not depend on the batch, but the
     estimator's and the policy's matrix products round differently at other batch sizes (a
-    2-episode slice of a 10-episode batch re-flown alone differed in every RMSE), so the unit of
+    2-episode slice of a 10-episode batch re-flown alone differed in every policy RMSE), so the unit of
     a check is one recorded batch (``results["batch"]``; files without it flew all their
     episodes in one)."""
     sweep_name = results["sweep"]
