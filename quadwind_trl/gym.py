@@ -31,16 +31,18 @@ from tensordict import TensorDictBase
 from .estimator import load_estimator
 from .keys import OBSERVATION_DIM, OBSERVATION_KEY
 from .manifest import CHECKPOINT_DIR
-from .rl.envs import Regime, WindInput, make_env
+from .rl.envs import Regime, WindInput, make_env, policy_ema_tau_s
 from .validation import check_action, load_checkpoint
 
 ENV_IDS = {"horizontal": "QuadWind-Horizontal-v0", "vertical": "QuadWind-Vertical-v0"}
 ACTION_DIM = 4
 
 
-def shipped_vecnorm_state(regime: Regime) -> dict:
-    """The observation statistics of the shipped policy for ``regime``."""
-    return load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["vecnorm"]
+def shipped_policy_inputs(regime: Regime, estimator) -> dict:
+    """What the shipped policy for ``regime`` saw: its observation statistics and the EMA time
+    constant on its wind estimate (``make_env`` keywords)."""
+    payload = load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")
+    return {"vecnorm_state": payload["vecnorm"], "ema_tau_s": policy_ema_tau_s(payload["env_spec"], estimator)}
 
 
 class _BatchedStack:
@@ -49,9 +51,11 @@ class _BatchedStack:
     def __init__(self, regime: Regime, num_envs: int, wind_input: WindInput, estimator: str | None,
                  vecnorm_state: dict | None, obs_clip: float, seed: int, env_kwargs: dict[str, Any]):
         bundle = None if wind_input == "truth" else load_estimator(regime, estimator)
-        state = vecnorm_state if vecnorm_state is not None else shipped_vecnorm_state(regime)
+        # the shipped policy's normalisation comes with the filter it was trained behind (env_kwargs
+        # may still set ema_tau_s); a given vecnorm_state leaves the filter to env_kwargs
+        shipped = shipped_policy_inputs(regime, bundle) if vecnorm_state is None else {"vecnorm_state": vecnorm_state}
         self.env = make_env(regime, bundle, num_envs, wind_input=wind_input, seed=seed, obs_clip=obs_clip,
-                            vecnorm_state=state, **env_kwargs)
+                            **(shipped | env_kwargs))
         self.num_envs = num_envs
         self.td: TensorDictBase | None = None
 

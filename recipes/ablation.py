@@ -1,5 +1,6 @@
-"""The paired ablation: PD, wind-blind RL, wind-aware RL and a true-wind oracle on identical
-replayed episodes of the paper's evaluation sweeps; tables (JSON) and figures.
+"""The paired ablation: PD, wind-blind RL, wind-aware RL, a true-wind oracle and a policy trained
+without wind inputs, on identical replayed episodes of the paper's evaluation sweeps; tables
+(JSON) and figures.
 
     python recipes/ablation.py                                   # horizontal 225, vertical 144, OOD 90
     python recipes/ablation.py --sweeps horizontal --policy runs/ppo_horizontal/policy.pt
@@ -7,8 +8,9 @@ replayed episodes of the paper's evaluation sweeps; tables (JSON) and figures.
     python recipes/ablation.py --sweeps horizontal --batch 45          # five batches of 45 episodes
     python recipes/ablation.py --verify results/ablation_horizontal.json --chunks 0:1
 
-By default the shipped checkpoints are used (``quadwind_trl/checkpoints/policy_<regime>.pt`` and
-``estimator_<regime>.pt``). Writes ``results/ablation_<sweep>.json`` and ``docs/figures/*.png``
+By default the shipped checkpoints are used (``quadwind_trl/checkpoints/policy_<regime>.pt``,
+``policy_<regime>_trained_blind.pt`` and ``estimator_<regime>.pt``); without a trained-blind
+policy the ``trained_blind`` controller is left out, and said so. Writes ``results/ablation_<sweep>.json`` and ``docs/figures/*.png``
 (``--quick``: under ``runs/quick/``); ``python recipes/report.py`` renders them into
 docs/results.md. ``--batch B`` flies B episodes at a time (default: the whole sweep in one batch,
 the fastest), recorded in the file. ``--verify FILE`` writes nothing: it re-flies batches
@@ -44,7 +46,10 @@ def main() -> None:
     parser.add_argument("--policy", type=Path, nargs="*", default=None,
                         help="policy checkpoints, one per regime in the order horizontal, vertical (default: shipped)")
     parser.add_argument("--estimator", type=Path, nargs="*", default=None, help="estimator checkpoints, same order")
-    parser.add_argument("--controllers", nargs="+", default=list(CONTROLLERS), choices=list(CONTROLLERS))
+    parser.add_argument("--blind-policy", type=Path, nargs="*", default=None,
+                        help="policies trained with --wind-input zero, same order (default: shipped, if any)")
+    parser.add_argument("--controllers", nargs="+", default=None, choices=list(CONTROLLERS),
+                        help=f"default: {' '.join(CONTROLLERS)} (trained_blind only where a trained-blind policy exists)")
     parser.add_argument("--quick", action="store_true", help="one seed and intensity per sweep, 10 s patterns flown from their start")
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
@@ -70,15 +75,26 @@ def main() -> None:
     for name in args.sweeps:
         sweep, regime = SWEEPS[name], SWEEP_REGIME[name]
         policy_path = checkpoint("policy", regime, args.policy)
+        blind_path = checkpoint("policy", regime, args.blind_policy) if args.blind_policy else (
+            CHECKPOINT_DIR / f"policy_{regime}_trained_blind.pt")
+        controllers = tuple(args.controllers or CONTROLLERS)
+        if args.controllers is None and not blind_path.exists():
+            controllers = tuple(c for c in controllers if c != "trained_blind")
+            print(f"{name}: no trained-blind policy at {repo_relative(blind_path)}; flying {', '.join(controllers)}")
+        elif "trained_blind" in controllers and not blind_path.exists():
+            parser.error(f"--controllers trained_blind: no trained-blind policy at {blind_path} (--blind-policy)")
         estimator = load_estimator(regime, checkpoint("estimator", regime, args.estimator))
         scenarios, override = sweep_setup(sweep, args.quick)
         compile_step = False if args.eager else policy_compile_step(load_policy(policy_path)[1])
         start = time.perf_counter()
         batch = min(args.batch or scenarios.batch_size[0], scenarios.batch_size[0])
-        results = fly_controllers(regime, scenarios, policy_path, estimator, tuple(args.controllers), batch=batch,
-                                  progress=True, config_override=override, compile_step=compile_step)
+        flies_blind = "trained_blind" in controllers
+        results = fly_controllers(regime, scenarios, policy_path, estimator, controllers, batch=batch,
+                                  progress=True, config_override=override, compile_step=compile_step,
+                                  blind_policy_path=blind_path if flies_blind else None)
         summary = summarize_ablation(sweep, scenarios, results)
         summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
+                       blind_policy=repo_relative(blind_path) if flies_blind else None,
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
                        estimator_manifest=estimator.manifest.get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)

@@ -18,10 +18,11 @@ On the held-out test wind cases of --data (the training split, by wind case) and
 
 The tables, figures and the evaluation itself are library code (``quadwind_trl.evaluation``:
 ``estimation_run``, ``estimation_tables``, ``estimation_figures``); this script parses the
-arguments, loads, calls them and writes the outputs. The deployed tau is the env's
-(``quadwind_trl.estimator.ema.DEFAULT_TAU_S``). --update-checkpoint records the evaluation
-metrics and the validation-selected tau in the checkpoint's manifest (it never changes the tau
-the checkpoint holds: policies trained with it depend on it).
+arguments, loads, calls them and writes the outputs. The validation-best tau is the deployed
+one: --update-checkpoint records it, with the evaluation metrics, in the checkpoint's manifest,
+and the PPO recipes train with it (``quadwind_trl.rl.envs.validated_tau_s``); the paper's tau
+(``quadwind_trl.estimator.ema.DEFAULT_TAU_S``, 3 s) is reported beside it. Policies record the
+tau they trained with, so re-evaluating an estimator never changes how a trained policy flies.
 """
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ from quadwind_trl.evaluation.estimation import TAU_SWEEP_S
 from quadwind_trl.evaluation.estimation_figures import estimation_figures
 from quadwind_trl.evaluation.estimation_run import run_estimation
 from quadwind_trl.evaluation.estimation_tables import estimation_markdown, replace_section
-from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, repo_relative
+from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, repo_relative
 
 
 def main() -> None:
@@ -80,9 +81,8 @@ def main() -> None:
     trained_on = bundle.manifest.get("dataset", {}).get("manifest_sha256")
     if trained_on and trained_on != ed.info["manifest_sha256"]:
         print(f"WARNING: {ckpt} was trained on another dataset ({bundle.manifest['dataset'].get('path')}); its test split may overlap training", flush=True)
-    deployed = DEFAULT_TAU_S
     results: dict = {"regime": regime, "checkpoint": repo_relative(ckpt), "data": ed.info, "stride": args.stride,
-                     "command": command_line(sys.argv), "deployed_tau_s": deployed}  # fmt: skip
+                     "command": command_line(sys.argv), "git_commit": git_commit(), "paper_tau_s": DEFAULT_TAU_S}  # fmt: skip
     unseen = None
     if args.unseen_data:
         try:
@@ -90,7 +90,7 @@ def main() -> None:
         except (FileNotFoundError, ValueError) as err:
             p.error(f"--unseen-data: {err}")
     run = run_estimation(bundle, ed, results, unseen=unseen, stride=args.stride, batch=args.batch, taus=args.taus,
-                         deployed_tau_s=deployed)
+                         paper_tau_s=DEFAULT_TAU_S)
     figs, case = estimation_figures(run, fig_dir)
     results["figures"] = {k: str(v) for k, v in figs.items()}
     results["example_case"] = case

@@ -3,23 +3,36 @@
 
     python recipes/reproduce.py --quick     # toy scale, about 4 minutes on 2 idle cores (scripts/quickstart.sh)
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
+    python recipes/reproduce.py --full --only ppo-horizontal-seed1 ppo-vertical-seed1
 
 Each stage is one of the recipes in this folder, run as its own process; a stage whose output
 already exists is skipped (``--force STAGE`` reruns it), and the long stages resume from their
-last checkpoint when interrupted, so a full reproduction can span several sessions.
+last checkpoint when interrupted, so a full reproduction can span several sessions. Each finished
+stage's wall time, commit and machine load are added to ``pipeline_times.json`` (``results/``).
 ``--quick`` writes everything under ``runs/quick/`` (or ``--out DIR``) and never touches the shipped checkpoints,
 ``results/`` or ``docs/``; ``--full`` writes the shipped artifacts.
+
+``--full`` trains each regime's policy with three seeds (:data:`SEEDS`), wind-aware and trained
+blind (:data:`POLICY_KINDS`), keeps every seed's policy in ``results/policies/``, flies every
+seed's paired ablation (``results/seeds/seed<k>/``), then ships the median seed of each
+(``ship-policies``: ``quadwind_trl/checkpoints/policy_<regime>[_trained_blind].pt``, and its
+ablations as ``results/ablation_<sweep>.json``).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import subprocess
 import sys
 import time
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
+from typing import Callable
+
+from quadwind_trl.manifest import git_commit, write_json
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
@@ -28,8 +41,9 @@ CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
 @dataclass(frozen=True)
 class Stage:
     name: str
-    args: tuple[str, ...]
+    args: tuple[str, ...]  # a recipe and its arguments; () for a stage that is only ``after``
     output: Path  # the stage is done when this exists
+    after: Callable[[], None] | None = None  # run in this process once the recipe has finished
 
 
 def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage]:
@@ -59,37 +73,98 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
                   q / "results.md"),
         ]
         return out
-    data = {r: ROOT / "data" / f"flights_{r}" for r in ("horizontal", "vertical")}
+    data = {r: ROOT / "data" / f"flights_{r}" for r in REGIMES}
     unseen = {r: ROOT / "data" / f"flights_{r}_unseen" for r in data}
     unseen_seed = {"horizontal": "1002", "vertical": "2002"}
-    return [
+    plan = [
         *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--compile", "--threads", "1", "--resume"), data[r]) for r in data),
         *(Stage(f"data-{r}-unseen", ("generate_flights.py", "--regime", r, "--cases", "150", "--seed", unseen_seed[r],
                                      "--out", str(unseen[r]), "--compile", "--threads", "1", "--resume"), unseen[r]) for r in data),
         *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--threads", "1", "--resume",
                                    "--no-progress"), CHECKPOINTS / f"estimator_{r}.pt") for r in data),
+        # --update-checkpoint records the validation-best EMA tau, which the policies then train with
         *(Stage(f"estimator-{r}-evaluation", ("evaluate_estimator.py", "--regime", r, "--data", str(data[r]), "--unseen-data",
-                                              str(unseen[r]), "--threads", "1"),
+                                              str(unseen[r]), "--threads", "1", "--update-checkpoint"),
                 ROOT / "results" / f"estimation_{r}.json") for r in data),
-        Stage("ppo-horizontal", ("ppo_horizontal.py", "--out", "runs/ppo_horizontal", "--resume", "--no-progress"),
-              CHECKPOINTS / "policy_horizontal.pt"),
-        Stage("ppo-vertical", ("ppo_vertical_curriculum.py", "--out", "runs/ppo_vertical", "--resume", "--no-progress"),
-              CHECKPOINTS / "policy_vertical.pt"),
+    ]
+    for kind in POLICY_KINDS:
+        for seed in SEEDS:
+            for r in REGIMES:
+                recipe = "ppo_horizontal.py" if r == "horizontal" else "ppo_vertical_curriculum.py"
+                run = policy_run(r, kind, seed)
+                plan.append(Stage(run.name.replace("_", "-"), (recipe, "--out", str(run), "--seed", str(seed), *POLICY_KINDS[kind],
+                                                              "--resume", "--no-progress"), kept_policy(r, kind, seed),
+                                  after=partial(keep_policy, r, kind, seed)))
+    for seed in SEEDS:
+        # each seed's wind-aware and trained-blind policies on all three sweeps, every controller
+        kept = {kind: [str(kept_policy(r, kind, seed)) for r in REGIMES] for kind in POLICY_KINDS}
+        out = SEED_RESULTS / f"seed{seed}"
+        plan.append(Stage(f"ablation-seed{seed}", ("ablation.py", "--policy", *kept["aware"], "--blind-policy", *kept["trained_blind"],
+                                                   "--results", str(out), "--figures", str(out / "figures")),
+                          out / "ablation_ood.json"))
+    plan += [
+        Stage("ship-policies", (), CHECKPOINTS / "policy_vertical_trained_blind.pt", after=ship_median_seeds),
         Stage("pd-baseline", ("pd_baseline.py",), ROOT / "results" / "pd_baseline.json"),
-        Stage("ablation", ("ablation.py",), ROOT / "results" / "ablation_ood.json"),
         *(Stage(f"error-budget-{s}", ("error_budget.py", "--sweep", s), ROOT / "results" / f"error_budget_{s}.json")
           for s in ("horizontal", "vertical")),
         Stage("report", ("report.py",), ROOT / "docs" / "results.md"),
     ]
+    return plan
 
 
-def ship_policy(regime: str) -> None:
-    """Copy a finished full-scale PPO run's policy (and manifest) into the package."""
-    run = ROOT / "runs" / f"ppo_{regime}"
-    for suffix in (".pt", ".json"):
-        src = run / f"policy{suffix}"
-        if src.exists():
-            shutil.copyfile(src, CHECKPOINTS / f"policy_{regime}{suffix}")
+REGIMES = ("horizontal", "vertical")
+SEEDS = (0, 1, 2)
+# the policies trained per regime and seed, with their recipe options: the paper's wind-aware
+# policy, and one trained from scratch with its wind inputs zeroed (the perception baseline)
+POLICY_KINDS = {"aware": (), "trained_blind": ("--wind-input", "zero")}
+# every seed's policy is kept (about 0.6 MB each) so that each seed's ablation can be re-flown
+SEED_POLICIES = ROOT / "results" / "policies"
+SEED_RESULTS = ROOT / "results" / "seeds"
+
+
+def policy_run(regime: str, kind: str, seed: int) -> Path:
+    suffix = "" if kind == "aware" else f"_{kind}"
+    return ROOT / "runs" / f"ppo_{regime}{suffix}_seed{seed}"
+
+
+def kept_policy(regime: str, kind: str, seed: int) -> Path:
+    return SEED_POLICIES / f"{policy_run(regime, kind, seed).name}.pt"
+
+
+def _copy_policy(src: Path, dst: Path) -> None:
+    """A policy and its JSON manifest."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    for suffix in (".json", ".pt"):  # the .pt last: it marks the copy done
+        shutil.copyfile(src.with_suffix(suffix), dst.with_suffix(suffix))
+
+
+def keep_policy(regime: str, kind: str, seed: int) -> None:
+    """Copy a finished PPO run's policy (and manifest) to ``results/policies/``."""
+    _copy_policy(policy_run(regime, kind, seed) / "policy.pt", kept_policy(regime, kind, seed))
+
+
+def median_seed(regime: str, kind: str) -> int:
+    """The seed in the middle of the seeds by its policy's xy RMSE reduction against PD on the
+    regime's own evaluation sweep (the seeds' ablations: 225 / 144 paired episodes)."""
+    score = {seed: json.loads((SEED_RESULTS / f"seed{seed}" / f"ablation_{regime}.json").read_text())["rmse_xy"][kind]["improvement"]
+             for seed in SEEDS}
+    return sorted(score, key=score.get)[len(SEEDS) // 2]
+
+
+def ship_median_seeds() -> None:
+    """Ship the median seed's policy of each regime and kind (``quadwind_trl/checkpoints/
+    policy_<regime>[_trained_blind].pt``), and make the wind-aware median seed's ablations the
+    headline results (``results/ablation_<sweep>.json``; they record the kept policy they flew,
+    byte for byte the shipped one)."""
+    for regime in REGIMES:
+        for kind in POLICY_KINDS:
+            seed = median_seed(regime, kind)
+            suffix = "" if kind == "aware" else f"_{kind}"
+            _copy_policy(kept_policy(regime, kind, seed), CHECKPOINTS / f"policy_{regime}{suffix}.pt")
+            print(f"shipped the {regime} {kind} policy of seed {seed}", flush=True)
+    for sweep, regime in (("horizontal", "horizontal"), ("vertical", "vertical"), ("ood", "horizontal")):
+        seed = median_seed(regime, "aware")
+        shutil.copyfile(SEED_RESULTS / f"seed{seed}" / f"ablation_{sweep}.json", ROOT / "results" / f"ablation_{sweep}.json")
 
 
 def main() -> None:
@@ -107,6 +182,7 @@ def main() -> None:
     for name in (args.only or []) + [f for f in args.force if f != "all"]:
         if name not in names:
             parser.error(f"unknown stage {name!r}; stages: {', '.join(names)}")
+    times = (args.out.resolve() if args.quick else ROOT / "results") / "pipeline_times.json"
     start = time.perf_counter()
     for stage in plan:
         if args.only is not None and stage.name not in args.only:
@@ -115,19 +191,31 @@ def main() -> None:
         if stage.output.exists() and not forced and stage.name != "report":
             print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
             continue
-        cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
-        if forced and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
-            cmd.append("--overwrite")
-        print(f"[{stage.name}] {' '.join(cmd[1:])}", flush=True)
-        t0 = time.perf_counter()
-        subprocess.run(cmd, cwd=ROOT, check=True)
-        if args.full and stage.name.startswith("ppo-"):
-            ship_policy(stage.name.split("-")[1])
-        print(f"[{stage.name}] finished in {time.perf_counter() - t0:.0f} s", flush=True)
+        t0, commit = time.perf_counter(), git_commit()  # before the stage writes shipped (tracked) files
+        if stage.args:
+            cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
+            if forced and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
+                cmd.append("--overwrite")
+            print(f"[{stage.name}] {' '.join(cmd[1:])}", flush=True)
+            subprocess.run(cmd, cwd=ROOT, check=True)
+        if stage.after is not None:
+            stage.after()
+        seconds = time.perf_counter() - t0
+        print(f"[{stage.name}] finished in {seconds:.0f} s", flush=True)
+        record_time(times, stage.name, seconds, commit)
     elapsed = time.perf_counter() - start
-    print(f"all stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min)")
+    print(f"this session's stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min); per stage, over sessions: {times}")
     if args.quick:
         print(toy_summary(args.out.resolve()))
+
+
+def record_time(path: Path, stage: str, seconds: float, commit: str | None) -> None:
+    """Add a finished stage's wall time (with the machine's load and the commit it ran at) to
+    ``path``, the per-stage record a reproduction spanning several sessions adds up."""
+    record = json.loads(path.read_text()) if path.exists() else {}
+    record[stage] = {"wall_time_s": round(seconds, 1), "finished": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+                     "git_commit": commit, "load_average_1min": round(os.getloadavg()[0], 2)}
+    write_json(path, record)
 
 
 def toy_summary(q: Path) -> str:

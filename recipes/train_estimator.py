@@ -37,7 +37,7 @@ def main() -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=None, help="torch intra-op threads (default: torch's)")
     p.add_argument("--compile", action="store_true", help="torch.compile the training forward")
-    p.add_argument("--resume", action="store_true", help="continue the interrupted run writing --out")
+    p.add_argument("--resume", action="store_true", help="continue the interrupted run writing --out (none: start one)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint at --out")
     p.add_argument("--log-dir", default="runs/estimator")
     p.add_argument("--exp-name", default=None, help="logger experiment name (default: unique per run)")

@@ -75,3 +75,14 @@ def test_reset_rows_restarts_only_those_rows():
     state, y = ema_step(state, torch.tensor([[7.0, 7.0], [7.0, 7.0]]), cfg)
     torch.testing.assert_close(y[0], torch.tensor([7.0, 7.0]))  # restarted: the first sample
     assert float(y[1, 0]) < 3.0  # still filtering (and gated: a 5 m/s jump on a ~0 scale)
+
+
+def test_new_policies_train_with_the_tau_chosen_on_validation(tmp_path):
+    from quadwind_trl.estimator import DEFAULT_TAU_S, EstimatorBundle, untrained_estimator
+    from quadwind_trl.rl.envs import validated_tau_s
+
+    bundle = untrained_estimator("horizontal")
+    assert validated_tau_s(bundle) == DEFAULT_TAU_S  # never evaluated: the paper's
+    bundle.manifest["evaluation"] = {"val_best_tau_s": 20.0}  # what evaluate_estimator --update-checkpoint writes
+    bundle.save(tmp_path / "est.pt")
+    assert validated_tau_s(EstimatorBundle.load(tmp_path / "est.pt")) == 20.0

@@ -403,6 +403,9 @@ def test_interrupted_run_resumes_to_the_same_result(quick_vertical, tmp_path):
     a = torch.load(resume_path(tmp_path / "a.pt", tmp_path / "logs"), weights_only=False)["model"]
     b = torch.load(resume_path(tmp_path / "b.pt", tmp_path / "logs"), weights_only=False)["model"]
     assert all(torch.equal(a[k], b[k]) for k in a)
+    # --resume with nothing to resume starts the run (a pipeline can always pass it)
+    fresh = train_estimator(ed, cfg, tmp_path / "c.pt", resume=True, log_dir=tmp_path / "logs", progress=False)
+    assert [h["val_loss"] for h in fresh.history] == [h["val_loss"] for h in full.history]
 
 
 def test_train_recipe_quick_runs_end_to_end(quick_vertical, tmp_path):

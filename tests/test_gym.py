@@ -67,8 +67,8 @@ def test_observation_is_the_torchrl_stacks():
     sc = make_scenarios(2, traj_id="figure8_h", altitude_m=20.0, wind_speed_ref_m_s=6.0, turb_intensity=0.1,
                         turb_seed=[1, 2], sensor_seed=[3, 4], start_step=-1)
     envs = qgym.QuadWindVectorEnv("horizontal", 2, **kwargs)
-    ref = make_env("horizontal", load_estimator("horizontal"), 2, vecnorm_state=qgym.shipped_vecnorm_state("horizontal"),
-                   **kwargs)
+    estimator = load_estimator("horizontal")
+    ref = make_env("horizontal", estimator, 2, **qgym.shipped_policy_inputs("horizontal", estimator), **kwargs)
     obs, _ = envs.reset(options={"scenario": sc})
     td = ref.reset(scenario=sc)
     np.testing.assert_array_equal(obs, td["observation"].numpy())
@@ -90,3 +90,19 @@ def test_sb3_example_trains(tmp_path):
     assert out.returncode == 0, out.stderr[-2000:]
     assert "SB3 PPO: 256 decisions" in out.stdout
     assert (tmp_path / "model.zip").exists()
+
+
+def test_gym_filters_the_wind_estimate_as_the_shipped_policy_was_trained():
+    from quadwind_trl.manifest import CHECKPOINT_DIR
+    from quadwind_trl.rl.envs import find_transform, policy_ema_tau_s
+    from quadwind_trl.rl.policy import load_policy
+    from quadwind_trl.transforms import WindEstimate
+
+    for regime in ("horizontal", "vertical"):
+        env = qgym.QuadWindVectorEnv(regime, 1, **_short(regime))
+        wind = find_transform(env.stack.env, WindEstimate)
+        _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
+        assert wind.ema_config.tau_s == policy_ema_tau_s(payload["env_spec"], wind.estimator)
+        # an explicit setting still wins
+        env = qgym.QuadWindVectorEnv(regime, 1, **(_short(regime) | {"ema_tau_s": 0.0}))
+        assert find_transform(env.stack.env, WindEstimate).ema_config.tau_s == 0.0

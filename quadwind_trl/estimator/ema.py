@@ -22,7 +22,8 @@ import torch
 from torch import Tensor
 
 
-#: the deployed time constant (paper); the one default of the env's ``ema_tau_s``
+#: the paper's deployed time constant: the env's ``ema_tau_s`` unless one is chosen (the PPO recipes
+#: train with the tau chosen on the estimator's validation flights, ``rl.envs.validated_tau_s``)
 DEFAULT_TAU_S = 3.0
 
 

@@ -306,11 +306,10 @@ def _make_bundle(model: AttentionGRUEstimator, wd: WindowedData, schema: str, ma
 
 
 def _resume_state(ed: EstimatorData, cfg: TrainConfig, out: Path, state_path: Path, resume: bool, overwrite: bool) -> dict | None:
-    """The interrupted run's state to continue (``resume``), else None after checking that
-    nothing would be overwritten by accident."""
-    if resume:
-        if not state_path.exists():
-            raise FileNotFoundError(f"--resume: no resume state at {state_path}")
+    """The interrupted run's state to continue (``resume`` and a state exists), else None after
+    checking that nothing would be overwritten by accident. ``resume`` without a state starts a new
+    run, as the PPO recipes do, so a pipeline can always pass it (``recipes/reproduce.py``)."""
+    if resume and state_path.exists():
         state = torch.load(state_path, map_location="cpu", weights_only=False)
         saved = TrainConfig.from_dict(state["config"])
         if saved != cfg:

@@ -10,7 +10,11 @@ them (``docs/simulator.md``, exact replay; the flights go through
   weights, the wind channel removed at inference (the paper's "wind-blind RL");
 * ``aware``: the trained policy reading the frozen estimator's filtered wind (the paper's system);
 * ``oracle``: the same policy fed the true turbulence-free mean wind instead of the estimate
-  (not in the paper: it measures what a perfect estimator would add).
+  (not in the paper: it measures what a perfect estimator would add);
+* ``trained_blind``: a second policy, trained from scratch with its wind inputs zeroed
+  (``--wind-input zero``) and flown that way (not in the paper: trained-blind vs wind-aware is the
+  value of perception to a policy that could adapt to its absence, where zeroing the inputs of
+  a policy trained with them also measures how much it leans on them).
 """
 from __future__ import annotations
 
@@ -26,14 +30,16 @@ from ..envs.trajectories import trajectory_name
 from ..estimator import EstimatorBundle
 from ..regimes import EvalSweep
 from ..rl.envs import make_env, policy_ema_tau_s
-from ..rl.paired import fly_paired
+from ..rl.paired import fly_paired, improvement
 from ..rl.policy import load_policy
 from .grouping import summarize
 from .statistics import decompose, paired_summary
 
-CONTROLLERS = ("pd", "blind", "aware", "oracle")
+CONTROLLERS = ("pd", "blind", "aware", "oracle", "trained_blind")
 # PD ignores its observation: "truth" spares it the estimator (the physics is the same either way)
-WIND_INPUT = {"pd": "truth", "blind": "zero", "aware": "estimate", "oracle": "truth"}
+WIND_INPUT = {"pd": "truth", "blind": "zero", "aware": "estimate", "oracle": "truth", "trained_blind": "zero"}
+# the controllers that fly the second, trained-blind policy instead of the wind-aware one
+BLIND_TRAINED = frozenset({"trained_blind"})
 TRACE_KEYS = (("truth", "pos"), "ref_pos", ("truth", "mean_wind"), "step")
 
 
@@ -60,6 +66,7 @@ def fly_controllers(
     config_override: Callable[[EnvConfig], EnvConfig] | None = None,
     compile_step: bool | None = None,
     chunks: range | None = None,
+    blind_policy_path: str | Path | None = None,
 ) -> dict[str, FlightResults]:
     """Fly ``scenarios`` with each controller (:func:`~quadwind_trl.rl.paired.fly_paired`);
     results per controller, in scenario order.
@@ -67,21 +74,39 @@ def fly_controllers(
     The env is the one the policy trained in (its config is in the checkpoint), unless
     ``config_override`` changes it (e.g. shorter flights for smoke runs). ``compile_step``
     (default: :func:`policy_compile_step`) chooses the compiled or the eager simulator step.
-    ``batch`` episodes fly at once (default: all); ``chunks`` flies only those batches."""
-    actor, payload = load_policy(policy_path, device=device)
+    ``batch`` episodes fly at once (default: all); ``chunks`` flies only those batches.
+    ``blind_policy_path`` is the trained-blind policy (needed for ``trained_blind``); it must have
+    trained on the same env config, so that every controller flies the same worlds."""
+    policies = {"aware": load_policy(policy_path, device=device)}
+    if BLIND_TRAINED & set(controllers):
+        if blind_policy_path is None:
+            raise ValueError(f"controllers {sorted(BLIND_TRAINED & set(controllers))} need blind_policy_path (a policy "
+                             "trained with --wind-input zero)")
+        policies["trained_blind"] = load_policy(blind_policy_path, device=device)
+        trained_with = policies["trained_blind"][1]["env_spec"].get("wind_input")
+        if trained_with != "zero":
+            raise ValueError(f"blind_policy_path {blind_policy_path} trained with wind_input={trained_with!r}; "
+                             "a trained-blind policy trains with 'zero' (--wind-input zero)")
+        configs = {name: policy_env_config(payload) for name, (_, payload) in policies.items()}
+        if configs["trained_blind"] != configs["aware"]:
+            raise ValueError(f"the trained-blind policy {blind_policy_path} trained on another env config than "
+                             f"{policy_path}: their episodes would not be the same worlds")
+    _, payload = policies["aware"]
     config = policy_env_config(payload)
     if compile_step is None:
         compile_step = policy_compile_step(payload)
     if config_override is not None:
         config = config_override(config)
     n = batch or scenarios.batch_size[0]
-    flights = {
-        name: (make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
-                        device=device, config=config, vecnorm_state=payload["vecnorm"],
-                        ema_tau_s=policy_ema_tau_s(payload["env_spec"], estimator), compile_step=compile_step),
-               None if name == "pd" else actor)
-        for name in controllers
-    }
+
+    def flight(name: str):
+        actor, inputs = policies["trained_blind" if name in BLIND_TRAINED else "aware"]
+        env = make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
+                       device=device, config=config, vecnorm_state=inputs["vecnorm"],
+                       ema_tau_s=policy_ema_tau_s(inputs["env_spec"], estimator), compile_step=compile_step)
+        return env, None if name == "pd" else actor
+
+    flights = {name: flight(name) for name in controllers}
     return fly_paired(flights, scenarios, log_keys=TRACE_KEYS, progress=progress, chunks=chunks)
 
 
@@ -99,10 +124,16 @@ def _grouped_decomposition(table: TensorDictBase, metric: str, labels: torch.Ten
     out = {}
     for label in labels.unique(sorted=True).tolist():
         m = labels == label
-        d = decompose(table[f"pd_{metric}"][m], table[f"blind_{metric}"][m], table[f"aware_{metric}"][m])
+        aware = table[f"aware_{metric}"][m]
+        d = decompose(table[f"pd_{metric}"][m], table[f"blind_{metric}"][m], aware)
         row = d.as_dict()
-        if f"oracle_{metric}" in table.keys():
-            row["oracle"] = table[f"oracle_{metric}"][m].double().mean().item()
+        for name in ("oracle", "trained_blind"):
+            if f"{name}_{metric}" in table.keys():
+                row[name] = table[f"{name}_{metric}"][m].double().mean().item()
+        if f"trained_blind_{metric}" in table.keys():
+            # the value of perception between two trained policies: % of the trained-blind
+            # policy's RMSE the wind-aware one removes (positive: the estimate helps)
+            row["trained_perception"] = improvement(table[f"trained_blind_{metric}"][m], aware)
         out[label] = row
     return out
 
@@ -120,6 +151,9 @@ def summarize_ablation(sweep: EvalSweep, scenarios: TensorDictBase, results: dic
                 block[name] = paired_summary(table[f"pd_{metric}"], table[f"{name}_{metric}"])
             stats = summarize(table[f"{name}_{metric}"])
             block.setdefault("distribution", {})[name] = stats.as_dict()
+        if {"trained_blind", "aware"} <= set(results):
+            # aware vs the policy trained without wind inputs: perception's value, paired
+            block["trained_perception"] = paired_summary(table[f"trained_blind_{metric}"], table[f"aware_{metric}"])
         if {"pd", "blind", "aware"} <= set(results):
             block["decomposition"] = decompose(table[f"pd_{metric}"], table[f"blind_{metric}"], table[f"aware_{metric}"]).as_dict()
             block["by_wind"] = {f"{k:g}": v for k, v in _grouped_decomposition(table, metric, table["wind_speed_ref_m_s"]).items()}

@@ -82,7 +82,7 @@ def estimation_figures(run: EstimationRun, fig_dir: Path) -> tuple[dict[str, Pat
     """The regime's figures in ``fig_dir``: ``({name: path}, example wind case)``. Error vs speed
     (and, vertical, vs altitude) on the test cases; an example case's time series (vertical: on
     the unseen design if evaluated, with the deployed-tau EMA)."""
-    regime, results, deployed = run.regime, run.results, run.deployed_tau_s
+    regime, results, deployed = run.regime, run.results, run.tau_best
     figs = {}
     tag = f"estimation_{regime}"
     figs["speed"] = fig_dir / f"{tag}_error_vs_speed.png"

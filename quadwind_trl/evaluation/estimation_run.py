@@ -23,11 +23,11 @@ class EstimationRun:
     """The numbers (``results``, JSON-ready) and the sequences the figures are drawn from."""
 
     regime: str
-    deployed_tau_s: float  # the EMA tau the env deploys (reported beside the raw estimate)
+    paper_tau_s: float  # the paper's deployed EMA tau, reported beside ours
     results: dict
     sweep: dict[float, dict]  # validation metrics per swept tau (0: raw)
-    tau_best: float  # the validation-best tau
-    taus: list[float]  # the nonzero taus evaluated on test (and unseen): deployed and best
+    tau_best: float  # the validation-best tau: the one the PPO recipes deploy (rl.envs.validated_tau_s)
+    taus: list[float]  # the nonzero taus evaluated on test (and unseen): the paper's and the best
     test: FlightSequences
     test_filtered: dict[float, Tensor]  # tau -> EMA-filtered test estimates
     unseen: FlightSequences | None = None
@@ -67,7 +67,7 @@ def run_estimation(
     stride: int = 1,
     batch: int = 1024,
     taus: Sequence[float],
-    deployed_tau_s: float,
+    paper_tau_s: float,
 ) -> EstimationRun:
     """Evaluate ``estimator`` on ``ed``'s validation (tau sweep) and test flights and on every
     flight of ``unseen``; the metrics are added to ``results`` (whose entries stay first)."""
@@ -82,10 +82,10 @@ def run_estimation(
 
     test = flight_sequences(estimator, ed, split_flights(ed.windows, "test"), stride, batch, "test")
     results["test"] = evaluate_sequences(test, names)
-    filtered_taus = sorted({deployed_tau_s, tau_best} - {0.0})
+    filtered_taus = sorted({paper_tau_s, tau_best} - {0.0})
     test_f = _filtered(test, filtered_taus)
     results["test_ema"] = {str(tau): evaluate_sequences(test, names, pred=f)["summary"] for tau, f in test_f.items()}
-    run = EstimationRun(regime, deployed_tau_s, results, sweep, tau_best, filtered_taus, test, test_f)
+    run = EstimationRun(regime, paper_tau_s, results, sweep, tau_best, filtered_taus, test, test_f)
 
     if unseen is not None:
         if unseen.info["seed"] == ed.info["seed"]:

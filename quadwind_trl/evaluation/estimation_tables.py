@@ -81,11 +81,11 @@ def floor_table(columns: dict[str, dict], estimates: dict[str, dict]) -> str:
                   "flight mean", "estimator per-flight"], rows)  # fmt: skip
 
 
-def sweep_table(sweep: dict[float, dict], best: float, deployed: float) -> str:
+def sweep_table(sweep: dict[float, dict], best: float, paper: float) -> str:
     rows = []
     for tau, m in sweep.items():
         name = "raw" if tau == 0 else f"{tau:g}"
-        mark = (" (best)" if tau == best else "") + (" (deployed)" if tau == deployed else "")
+        mark = (" (best: deployed)" if tau == best else "") + (" (paper's)" if tau == paper else "")
         rows.append([name + mark, fmt(m["per_window_vector_rmse"], 3), fmt(m["direction_mae_deg"], 2),
                      fmt(m.get("per_flight_vector_rmse"), 3), fmt(m["corr_n"], 4), fmt(m["corr_e"], 4)])  # fmt: skip
     return table(["tau (s)", "per-window RMSE (m/s)", "dir. MAE (deg)", "per-flight RMSE (m/s)", "corr N", "corr E"], rows)
@@ -95,16 +95,16 @@ def estimation_markdown(run: EstimationRun, figs: dict[str, Path], checkpoint: s
                         link_base: str | Path, json_path: str | Path) -> str:
     """The regime's section: summary, turbulence floor, breakdowns, EMA sweep, unseen design,
     figure links (relative to ``link_base``); ``manifest`` is the checkpoint's."""
-    results, regime, deployed = run.results, run.regime, run.deployed_tau_s
+    results, regime, deployed = run.results, run.regime, run.tau_best
     info, unseen = results["data"], run.unseen
     t = results["test"]
     cols = {"ours: test (raw)": t["summary"]}
     if deployed in run.test_filtered:
-        cols[f"ours: test, EMA tau={deployed:g} s"] = results["test_ema"][str(deployed)]
+        cols[f"ours: test, EMA tau={deployed:g} s (deployed)"] = results["test_ema"][str(deployed)]
     if unseen is not None:
         cols["ours: unseen (raw)"] = results["unseen"]["summary"]
         if deployed in run.test_filtered:
-            cols[f"ours: unseen, EMA tau={deployed:g} s"] = results["unseen_ema"][str(deployed)]
+            cols[f"ours: unseen, EMA tau={deployed:g} s (deployed)"] = results["unseen_ema"][str(deployed)]
     paper = PAPER[regime]
     md = [f"## {regime.capitalize()} wind estimation", ""]
     md.append(
@@ -112,7 +112,7 @@ def estimation_markdown(run: EstimationRun, figs: dict[str, Path], checkpoint: s
         f"{manifest.get('metrics', {}).get('wall_time_s', '?')} s); dataset `{info['path']}` "
         f"({info['cases']} LHS cases, seed {info['seed']}); held-out test split: {info['split_cases']['test']} wind cases, "
         f"{t['summary'].get('n_flights', 0)} flights; estimates every {results['stride']} sample(s) of the 10 Hz record past the crop. "
-        f"Command: `{results['command']}`."
+        f"Command: `{results['command']}` (commit `{results.get('git_commit')}`)."
     )
     md += ["", f"### Summary (paper Table {'1' if regime == 'horizontal' else '3'})", "", summary_table(regime, cols), ""]
     floors = {"test": t["turbulence_floor"]}
@@ -150,7 +150,10 @@ def estimation_markdown(run: EstimationRun, figs: dict[str, Path], checkpoint: s
                 ["true", f"{s['altitude_speed_slope_true']:.2e}", f"{paper['slope_true']:.1e}"],
             ]), "",
         ]  # fmt: skip
-    md += ["### EMA post-filter sweep on the validation flights (tau = 0: raw; paper: tau = 3 s best)", "", sweep_table(run.sweep, run.tau_best, deployed), ""]
+    md += [f"### EMA post-filter sweep on the validation flights (tau = 0: raw; paper: tau = {run.paper_tau_s:g} s best)", "",
+           "The validation-best time constant is the one the PPO recipes train and fly the policy with "
+           "(`rl.envs.validated_tau_s`, recorded in the estimator's manifest).", "",
+           sweep_table(run.sweep, run.tau_best, run.paper_tau_s), ""]
     if unseen is not None:
         u = results["unseen"]["summary"]
         rows_ = [["raw", fmt(u["per_window_vector_rmse"]), fmt(u["direction_mae_deg"], 1),

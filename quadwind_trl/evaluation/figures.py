@@ -15,8 +15,9 @@ from ..envs.runner import FlightResults  # noqa: E402
 from ..envs.trajectories import trajectory_name  # noqa: E402
 from ..validation import trajectory_id  # noqa: E402
 
-COLORS = {"pd": "tab:red", "blind": "tab:orange", "aware": "tab:blue", "oracle": "tab:green"}
-LABELS = {"pd": "PD baseline", "blind": "wind-blind RL", "aware": "wind-aware RL", "oracle": "true-wind oracle"}
+COLORS = {"pd": "tab:red", "blind": "tab:orange", "aware": "tab:blue", "oracle": "tab:green", "trained_blind": "tab:purple"}
+LABELS = {"pd": "PD baseline", "blind": "wind-blind RL", "aware": "wind-aware RL", "oracle": "true-wind oracle",
+          "trained_blind": "RL trained wind-blind"}
 
 
 def _save(fig, path: Path) -> Path:
@@ -77,8 +78,9 @@ def decomposition(summary: dict, path: Path, metric: str = "rmse_xy") -> Path:
     a = ax[0, 0]
     for name in ("pd", "blind", "aware"):
         a.plot(speeds, [rows[s][name] for s in speeds], "o-", color=COLORS[name], label=LABELS[name])
-    if "oracle" in rows[speeds[0]]:
-        a.plot(speeds, [rows[s]["oracle"] for s in speeds], "s--", color=COLORS["oracle"], label=LABELS["oracle"])
+    for name in ("oracle", "trained_blind"):
+        if name in rows[speeds[0]]:
+            a.plot(speeds, [rows[s][name] for s in speeds], "s--", color=COLORS[name], label=LABELS[name])
     a.fill_between(speeds, [rows[s]["pd"] for s in speeds], [rows[s]["blind"] for s in speeds], color="tab:orange", alpha=0.15)
     a.fill_between(speeds, [rows[s]["blind"] for s in speeds], [rows[s]["aware"] for s in speeds], color="tab:blue", alpha=0.15)
     a.set(xlabel="U (m/s)", ylabel="mean RMSE (m)", title="controllers by wind level")

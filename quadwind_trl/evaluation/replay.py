@@ -43,6 +43,13 @@ def mismatches(reference: dict, flown: dict) -> tuple[list[tuple[str, str, int]]
     return differ, sum(len(values) for block in reference.values() for values in block.values())
 
 
+def _recorded(path: str | Path) -> Path:
+    """A checkpoint path as a results file records it: relative to the repository
+    (``manifest.repo_relative``) unless it exists from here or is absolute."""
+    path = Path(path)
+    return path if path.is_absolute() or path.exists() else ROOT / path
+
+
 def verify_ablation(results: dict, chunks: range | None = None, policy_path=None, estimator_path=None
                     ) -> tuple[dict[str, tuple[int, int]], int]:
     """Re-fly batches ``chunks`` (default: all) of an ablation results file (``recipes/ablation.py``
@@ -60,13 +67,13 @@ def verify_ablation(results: dict, chunks: range | None = None, policy_path=None
     sweep, regime = SWEEPS[sweep_name], SWEEP_REGIME[sweep_name]
     quick = bool(results.get("quick", "--quick" in results.get("command", "").split()))
     scenarios, override = sweep_setup(sweep, quick)
-    policy = Path(policy_path or results["policy"])
-    if not policy.is_absolute() and not policy.exists():
-        policy = ROOT / policy  # recorded relative to the repository (manifest.repo_relative)
+    policy = _recorded(policy_path or results["policy"])
+    blind = results.get("blind_policy")
     estimator = load_estimator(regime, estimator_path or results.get("estimator"))
     flown = fly_controllers(regime, scenarios, policy, estimator, tuple(results["controllers"]),
                             batch=results.get("batch", results["episodes"]), config_override=override,
-                            compile_step=bool(results.get("compile_step", False)), chunks=chunks)
+                            compile_step=bool(results.get("compile_step", False)), chunks=chunks,
+                            blind_policy_path=None if blind is None else _recorded(blind))
     table = results["episodes_table"]
     out, episodes = {}, 0
     for name, res in flown.items():

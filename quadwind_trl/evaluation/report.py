@@ -146,6 +146,27 @@ def _wind_table(block: dict, reference: dict, with_oracle: bool) -> list[str]:
     return lines
 
 
+def perception_tables(blocks: dict[str, dict]) -> list[str]:
+    """Trained-blind vs wind-aware RL per sweep and wind level (xy), beside the paper's measure
+    (the share of the improvement lost by zeroing the wind inputs of the wind-aware policy)."""
+    lines = ["### The value of perception between trained policies (not in the paper)", "",
+             "RL trained blind is a second policy trained from scratch with its wind inputs zeroed (`--wind-input zero`)",
+             "and flown that way. *Perception* = the share of its xy RMSE the wind-aware policy removes (paired, 95 % CI;",
+             "positive: the estimate helps); the paper's measure zeroes the wind-aware policy's own inputs instead.", ""]
+    for sweep, block in blocks.items():
+        t = block["trained_perception"]
+        lines += [f"{sweep.capitalize()} sweep: perception {t['improvement']:+.1f} % ({t['ci_low']:.1f}-{t['ci_high']:.1f}), "
+                  f"wind-aware better in {t['wins']}/{t['n']} episodes.", "",
+                  "| U (m/s) | PD (m) | RL trained blind (m) | wind-aware RL (m) | perception (%) | wind-blind (zeroed) RL (m) | "
+                  "perception share of the paper's decomposition (%) |",
+                  "|---|---|---|---|---|---|---|"]
+        for key, r in _by_number(block["by_wind"]):
+            lines.append(f"| {key} | {r['pd']:.3f} | {r['trained_blind']:.3f} | {r['aware']:.3f} | {r['trained_perception']:+.1f} | "
+                         f"{r['blind']:.3f} | {r['perception_share']:.1f} |")
+        lines.append("")
+    return lines
+
+
 def ablation_section(results: dict[str, dict]) -> str:
     """The paper's Tables 3-6, the out-of-distribution probe and the oracle row."""
     lines = ["## Wind-aware RL against PD: the paired ablation", ""]
@@ -188,6 +209,9 @@ def ablation_section(results: dict[str, dict]) -> str:
                   f"{dz['perception_share']:.1f} % (paper: 104.7 % and -4.7 %).", "",
                   "![vertical](figures/tracking_vertical.png)", "", "![vertical decomposition](figures/decomposition_vertical.png)",
                   "", "![3-D trace](figures/trace_figure8_3d.png)", ""]
+    trained = {name: r["rmse_xy"] for name, r in results.items() if "trained_perception" in r["rmse_xy"]}
+    if trained:
+        lines += perception_tables(trained)
     if "ood" in results:
         o = results["ood"]["rmse_xy"]
         a = o["aware"]
@@ -199,6 +223,65 @@ def ablation_section(results: dict[str, dict]) -> str:
                   f"| improvement | | {a['improvement']:.1f} % ({a['ci_low']:.1f}-{a['ci_high']:.1f}) | | {paper.OOD['improvement']} % |",
                   f"| wins | | {a['wins']}/{a['n']} | | {paper.OOD['wins']}/{paper.OOD['n']} |",
                   "", "![ood](figures/ood.png)", ""]
+    return "\n".join(lines)
+
+
+SEED_SWEEPS = (("horizontal", "rmse_xy", "horizontal xy"), ("vertical", "rmse_xy", "vertical xy"),
+               ("vertical", "rmse_z", "vertical z"), ("ood", "rmse_xy", "OOD xy"))
+
+
+def _spread(values: list[float]) -> str:
+    return f"{sum(values) / len(values):+.1f} ({min(values):+.1f} to {max(values):+.1f})"
+
+
+def seeds_section(seeds: dict[str, dict[str, dict]]) -> str:
+    """Every seed's paired ablation (``results/seeds/<seed>/ablation_<sweep>.json``): RMSE reduction
+    against PD of the wind-aware and the trained-blind policies, and perception between them, per
+    seed, then the mean and range over the seeds."""
+    lines = ["## Across training seeds", "",
+             "Each seed trains its own wind-aware and trained-blind policy (`recipes/reproduce.py --full`) and flies the",
+             "full paired ablation; the shipped policies are the median seed's by its own sweep. RMSE reduction against PD",
+             "(%, positive = better than PD), wins over PD, and perception = wind-aware vs trained-blind (%).", "",
+             "| seed | " + " | ".join(f"{label}: aware (wins)" for _, _, label in SEED_SWEEPS)
+             + " | horizontal xy: trained blind | horizontal xy: perception | OOD worst aware episode (m) |",
+             "|" + "---|" * (len(SEED_SWEEPS) + 4)]
+    columns: dict[str, list[float]] = {}
+    for seed, results in seeds.items():
+        cells = []
+        for sweep, metric, label in SEED_SWEEPS:
+            block = results.get(sweep, {}).get(metric)
+            if block is None:
+                cells.append("-")
+                continue
+            a = block["aware"]
+            columns.setdefault(label, []).append(a["improvement"])
+            cells.append(f"{a['improvement']:+.1f} ({a['wins']}/{a['n']})")
+        h = results.get("horizontal", {}).get("rmse_xy", {})
+        for key, name in (("trained_blind", "trained blind"), ("trained_perception", "perception")):
+            if key in h:
+                columns.setdefault(name, []).append(h[key]["improvement"])
+                cells.append(f"{h[key]['improvement']:+.1f}")
+            else:
+                cells.append("-")
+        ood = results.get("ood", {}).get("rmse_xy")
+        cells.append(f"{ood['worst']['aware']:.2f}" if ood else "-")
+        lines.append(f"| {seed} | " + " | ".join(cells) + " |")
+    order = [label for _, _, label in SEED_SWEEPS] + ["trained blind", "perception"]
+    lines.append("| mean (range) | " + " | ".join(_spread(columns[k]) if k in columns else "-" for k in order) + " | |")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def pipeline_section(times: dict[str, dict]) -> str:
+    """The wall time of each stage of ``recipes/reproduce.py --full`` (``results/pipeline_times.json``)."""
+    lines = ["## Pipeline wall time on this machine", "",
+             "Per stage of `python recipes/reproduce.py --full`, as each finished (stages ran over several sessions, some",
+             "beside another job on the other core: the 1-minute load average at the end is given).", "",
+             "| stage | wall time | finished | commit | load |", "|---|---|---|---|---|"]
+    for stage, t in times.items():
+        lines.append(f"| {stage} | {wall_time(t['wall_time_s'])} | {t['finished']} | `{t['git_commit']}` | {t['load_average_1min']} |")
+    total = sum(t["wall_time_s"] for t in times.values())
+    lines += [f"| all recorded stages | {wall_time(total)} | | | |", ""]
     return "\n".join(lines)
 
 
@@ -350,6 +433,14 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
                  for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
     if ablations:
         parts.append(ablation_section(ablations))
+    seeds = {path.name.removeprefix("seed"): {name: json.loads((path / f"ablation_{name}.json").read_text())
+                                              for name in ("horizontal", "vertical", "ood") if (path / f"ablation_{name}.json").exists()}
+             for path in sorted((results_dir / "seeds").glob("seed*"))}
+    if any(seeds.values()):
+        parts.append(seeds_section({seed: r for seed, r in seeds.items() if r}))
+    times = results_dir / "pipeline_times.json"
+    if times.exists():
+        parts.append(pipeline_section(json.loads(times.read_text())))
     # the current vehicle's budgets, then the shipped policies' own (legacy_walk) ones
     budgets = {f"{path.parent.name}/{path.stem}": json.loads(path.read_text())
                for pattern in ("error_budget_*.json", "legacy/error_budget_*.json")

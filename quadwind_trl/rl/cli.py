@@ -18,7 +18,7 @@ from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..quick import PPO_QUICK
 from ..regimes import regime_config
 from .config import PPOConfig, vertical_curriculum
-from .envs import DEFAULT_RANGES, RLEnvSpec
+from .envs import DEFAULT_RANGES, RLEnvSpec, validated_tau_s
 from .paired import default_eval_scenarios
 from .trainer import PPOTrainer
 
@@ -44,8 +44,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", help="torch device of the simulator, estimator and networks (cpu, cuda, ...)")
-    p.add_argument("--ema-tau-s", type=float, default=DEFAULT_TAU_S,
-                   help=f"time constant (s) of the EMA on the wind estimate the policy sees, 0: unfiltered (default {DEFAULT_TAU_S})")
+    p.add_argument("--ema-tau-s", type=float, default=None,
+                   help="time constant (s) of the EMA on the wind estimate the policy sees, 0: unfiltered (default: the "
+                        f"one chosen on the estimator's validation flights, recorded in its manifest; else {DEFAULT_TAU_S})")
     p.add_argument("--eager", action="store_true",
                    help="fly the simulator eagerly instead of through torch.compile (the default: compiled; --quick is eager)")
     p.add_argument("--wind-input", default="estimate", choices=["estimate", "zero", "truth"],
@@ -84,8 +85,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     torch.set_num_threads(args.threads)
     spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                      estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                     config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager,
-                     ema_tau_s=args.ema_tau_s)
+                     config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager)
     if args.quick:
         spec, cfg, changes = quick_setup(regime, spec)
         print("--quick changes from the full run:")
@@ -109,6 +109,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
                                     config=spec.env_config, device=spec.device)
         except (FileNotFoundError, ValueError) as err:
             raise SystemExit(f"error: {err}") from None
+    spec = replace(spec, ema_tau_s=args.ema_tau_s if args.ema_tau_s is not None else validated_tau_s(bundle))
+    print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else DEFAULT_EVAL_EPISODES[regime])
     scenarios = default_eval_scenarios(regime, episodes) if episodes > 0 else None

@@ -21,9 +21,10 @@ spec, :func:`make_env` is the keyword shorthand (its keywords are the spec's fie
 its path there), so TorchRL's multi-process collectors can construct it.
 
 The wind estimate's post-filter time constant is ``RLEnvSpec.ema_tau_s`` (default
-``estimator.ema.DEFAULT_TAU_S``); trained policies record it in their env spec. Policies trained
-before that field existed used the value in their estimator's checkpoint
-(:func:`policy_ema_tau_s`).
+``estimator.ema.DEFAULT_TAU_S``, the paper's); the PPO recipes train with the one chosen on the
+estimator's validation flights (:func:`validated_tau_s`), and trained policies record theirs in
+their env spec, which is what flying them must use (:func:`policy_ema_tau_s`; policies trained
+before that field existed used the value in their estimator's checkpoint).
 """
 from __future__ import annotations
 
@@ -160,6 +161,16 @@ def make_env(
     return build_env(spec, estimator, vecnorm_state=vecnorm_state, freeze_norm=freeze_norm)
 
 
+def validated_tau_s(estimator: WindEstimator | None) -> float:
+    """The EMA time constant a new policy trains with: the one chosen on the estimator's
+    validation flights (``evaluation.val_best_tau_s`` in its checkpoint's manifest, written by
+    ``recipes/evaluate_estimator.py --update-checkpoint``), else the paper's
+    :data:`~quadwind_trl.estimator.DEFAULT_TAU_S` (unevaluated or untrained estimators)."""
+    manifest = getattr(estimator, "manifest", None) or {}
+    chosen = manifest.get("evaluation", {}).get("val_best_tau_s")
+    return DEFAULT_TAU_S if chosen is None else float(chosen)
+
+
 def policy_ema_tau_s(env_spec: dict, estimator: WindEstimator | None) -> float:
     """The EMA time constant a policy trained with: its checkpoint's ``env_spec["ema_tau_s"]``, or,
     for policies saved before the env spec recorded it, the one their estimator's checkpoint held
@@ -235,6 +246,7 @@ __all__ = [
     "build_env",
     "make_env",
     "policy_ema_tau_s",
+    "validated_tau_s",
     "find_transform",
     "vecnorm",
     "vecnorm_state_dict",

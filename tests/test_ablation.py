@@ -1,0 +1,99 @@
+"""The ablation's controllers: a policy trained with its wind inputs zeroed flies the same worlds as
+the others, and its comparison with the wind-aware policy is summarised beside the paper's."""
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+
+from quadwind_trl.estimator import load_estimator
+from quadwind_trl.evaluation.ablation import fly_controllers, summarize_ablation
+from quadwind_trl.evaluation.report import perception_tables
+from quadwind_trl.evaluation.tracking import sweep_setup
+from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.regimes import SWEEPS
+from quadwind_trl.validation import load_checkpoint
+
+AWARE = CHECKPOINT_DIR / "policy_horizontal.pt"
+
+
+def _saved_as(tmp_path, name: str, change) -> str:
+    """The shipped horizontal policy with ``change`` applied to a copy of its payload."""
+    payload = copy.deepcopy(load_checkpoint(AWARE, "policy"))
+    change(payload)
+    path = tmp_path / name
+    torch.save(payload, path)
+    return str(path)
+
+
+def _trained_blind(payload: dict) -> None:
+    payload["env_spec"]["wind_input"] = "zero"
+
+
+@pytest.fixture(scope="module")
+def episodes():
+    sweep = SWEEPS["horizontal"]
+    scenarios, override = sweep_setup(sweep, quick=True)
+    return sweep, scenarios[:3], override
+
+
+def test_trained_blind_flies_the_same_worlds(tmp_path, episodes):
+    # the shipped policy relabelled as trained without wind inputs: flown with them zeroed, it must
+    # reproduce the zeroed ("blind") flights to the bit, so both controllers flew the same worlds
+    sweep, scenarios, override = episodes
+    blind = _saved_as(tmp_path, "blind.pt", _trained_blind)
+    results = fly_controllers("horizontal", scenarios, AWARE, load_estimator("horizontal"),
+                              ("pd", "blind", "aware", "trained_blind"), config_override=override, blind_policy_path=blind)
+    for metric in ("rmse_xy", "rmse_z", "crashed"):
+        assert torch.equal(getattr(results["trained_blind"], metric), getattr(results["blind"], metric))
+    summary = summarize_ablation(sweep, scenarios, results)
+    block = summary["rmse_xy"]
+    # perception between the two trained policies is scored like the paper's zeroing: aware vs blind
+    assert block["trained_perception"]["improvement"] == pytest.approx(
+        100.0 * (1.0 - block["distribution"]["aware"]["mean"] / block["distribution"]["trained_blind"]["mean"]))
+    assert block["trained_perception"]["other_mean"] == block["distribution"]["aware"]["mean"]
+    for row in block["by_wind"].values():
+        assert row["trained_blind"] == pytest.approx(row["blind"])
+        assert row["trained_perception"] == pytest.approx(100.0 * (row["blind"] - row["aware"]) / row["blind"])
+    # the report's table has one row per wind level, each with both measures of perception
+    rows = [line for line in perception_tables({"horizontal": block}) if line.startswith("| ") and "(m/s)" not in line]
+    assert [row.split(" | ")[0][2:] for row in rows] == sorted(block["by_wind"], key=float)
+
+
+def test_trained_blind_refuses_a_policy_that_saw_the_wind_or_flew_another_vehicle(tmp_path, episodes):
+    _, scenarios, override = episodes
+    estimator = load_estimator("horizontal")
+
+    def fly(path):
+        fly_controllers("horizontal", scenarios, AWARE, estimator, ("pd", "trained_blind"), config_override=override,
+                        blind_policy_path=path)
+
+    with pytest.raises(ValueError, match="blind_policy_path"):
+        fly(None)
+    with pytest.raises(ValueError, match="wind_input='estimate'"):
+        fly(AWARE)
+
+    def heavier(payload):
+        _trained_blind(payload)
+        payload["env_spec"]["env_config"]["vehicle"]["mass_kg"] *= 1.1
+
+    with pytest.raises(ValueError, match="another env config"):
+        fly(_saved_as(tmp_path, "heavier.pt", heavier))
+
+
+def test_seed_table_reports_every_seed_and_the_mean_and_range():
+    from quadwind_trl.evaluation.report import seeds_section
+
+    def result(aware: float, blind: float) -> dict:
+        block = {"aware": {"improvement": aware, "wins": 200, "n": 225}, "trained_blind": {"improvement": blind},
+                 "trained_perception": {"improvement": aware - blind}}
+        return {"horizontal": {"rmse_xy": block}}
+
+    text = seeds_section({"0": result(50.0, 30.0), "1": result(40.0, 35.0), "2": result(60.0, 20.0)})
+    rows = {line.split(" | ")[0][2:]: line.split(" | ")[1:] for line in text.splitlines() if line.startswith("| ")}
+    assert rows["1"][0] == "+40.0 (200/225)" and rows["2"][4] == "+20.0" and rows["0"][5] == "+20.0"
+    mean = rows["mean (range)"]
+    assert mean[0] == "+50.0 (+40.0 to +60.0)"  # horizontal aware
+    assert mean[4] == "+28.3 (+20.0 to +35.0)" and mean[5] == "+21.7 (+5.0 to +40.0)"  # trained blind, perception
+    assert mean[1] == "-"  # no vertical results: no made-up column
