@@ -277,11 +277,13 @@ def pipeline_section(times: dict[str, dict]) -> str:
     lines = ["## Pipeline wall time on this machine", "",
              "Per stage of `python recipes/reproduce.py --full`, as each finished (stages ran over several sessions, some",
              "beside another job on the other core: the 1-minute load average at the end is given).", "",
-             "| stage | wall time | finished | commit | load |", "|---|---|---|---|---|"]
+             "| stage | wall time | finished | commit | load | note |", "|---|---|---|---|---|---|"]
     for stage, t in times.items():
-        lines.append(f"| {stage} | {wall_time(t['wall_time_s'])} | {t['finished']} | `{t['git_commit']}` | {t['load_average_1min']} |")
+        load = t.get("load_average_1min")
+        lines.append(f"| {stage} | {wall_time(t['wall_time_s'])} | {t['finished']} | `{t['git_commit']}` | "
+                     f"{'-' if load is None else load} | {t.get('note', '')} |")
     total = sum(t["wall_time_s"] for t in times.values())
-    lines += [f"| all recorded stages | {wall_time(total)} | | | |", ""]
+    lines += [f"| all recorded stages | {wall_time(total)} | | | | |", ""]
     return "\n".join(lines)
 
 
