@@ -7,6 +7,7 @@ import os
 import re
 from pathlib import Path
 
+from ..manifest import repo_relative
 from .estimation import PAPER
 from .estimation_run import EstimationRun
 
@@ -108,7 +109,7 @@ def estimation_markdown(run: EstimationRun, figs: dict[str, Path], checkpoint: s
     paper = PAPER[regime]
     md = [f"## {regime.capitalize()} wind estimation", ""]
     md.append(
-        f"Checkpoint `{checkpoint}` (best epoch {manifest.get('best_epoch', '?')}, trained in "
+        f"Checkpoint `{repo_relative(checkpoint)}` (best epoch {manifest.get('best_epoch', '?')}, trained in "
         f"{manifest.get('metrics', {}).get('wall_time_s', '?')} s); dataset `{info['path']}` "
         f"({info['cases']} LHS cases, seed {info['seed']}); held-out test split: {info['split_cases']['test']} wind cases, "
         f"{t['summary'].get('n_flights', 0)} flights; estimates every {results['stride']} sample(s) of the 10 Hz record past the crop. "

@@ -283,7 +283,7 @@ def pipeline_section(times: dict[str, dict]) -> str:
         lines.append(f"| {stage} | {wall_time(t['wall_time_s'])} | {t['finished']} | `{t['git_commit']}` | "
                      f"{'-' if load is None else load} | {t.get('note', '')} |")
     total = sum(t["wall_time_s"] for t in times.values())
-    lines += [f"| all recorded stages | {wall_time(total)} | | | | |", ""]
+    lines += [f"| sum of the recorded stages (more than the elapsed time when two ran at once) | {wall_time(total)} | | | | |", ""]
     return "\n".join(lines)
 
 
