@@ -111,7 +111,7 @@ def test_saved_checkpoint_reloads_to_identical_outputs(tmp_path):
 
 def test_checkpoints_name_their_network_and_the_shipped_ones_default_to_the_attention_gru(tmp_path):
     """The loader builds the class a checkpoint names (a registry), not a hard-coded one; the
-    shipped checkpoints predate the name and load as the attention-GRU."""
+    shipped checkpoints name the attention-GRU, and checkpoints that predate the name load as it."""
     from dataclasses import dataclass
 
     from quadwind_trl.estimator import load_estimator, register_model
@@ -120,11 +120,15 @@ def test_checkpoints_name_their_network_and_the_shipped_ones_default_to_the_atte
     from quadwind_trl.validation import load_checkpoint
 
     for regime in ("horizontal", "vertical"):
-        assert "model" not in load_checkpoint(CHECKPOINT_DIR / f"estimator_{regime}.pt", "estimator")
+        assert load_checkpoint(CHECKPOINT_DIR / f"estimator_{regime}.pt", "estimator")["model"] == "attention_gru"
         assert type(load_estimator(regime).model) is AttentionGRUEstimator
     path = tmp_path / "gru.pt"
     small_bundle().save(path)
-    assert torch.load(path, weights_only=True)["model"] == "attention_gru"
+    payload = torch.load(path, weights_only=True)
+    assert payload["model"] == "attention_gru"
+    del payload["model"]  # as saved before checkpoints named their network
+    torch.save(payload, tmp_path / "unnamed.pt")
+    assert type(EstimatorBundle.load(tmp_path / "unnamed.pt").model) is AttentionGRUEstimator
 
     @dataclass(frozen=True)
     class MeanConfig:
