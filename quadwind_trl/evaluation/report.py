@@ -405,6 +405,12 @@ def policy_runs(runs_dir: Path, shipped_dir: Path) -> tuple[dict[str, dict], dic
     return manifests, logged
 
 
+def read_ablations(folder: Path) -> dict[str, dict]:
+    """The ablation results files in ``folder``, by sweep (those that exist)."""
+    return {name: json.loads((folder / f"ablation_{name}.json").read_text())
+            for name in ("horizontal", "vertical", "ood") if (folder / f"ablation_{name}.json").exists()}
+
+
 def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None,
                  toy: bool = False) -> str:
     """The whole results page: the preamble, then every section whose inputs exist. ``toy``: the
@@ -412,8 +418,7 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
     columns, ratios or the paper's episode counts)."""
     if toy:
         pd_file = results_dir / "pd_baseline.json"
-        ablations = {name: json.loads((results_dir / f"ablation_{name}.json").read_text())
-                     for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
+        ablations = read_ablations(results_dir)
         parts = [TOY_PREAMBLE.rstrip(), "",
                  toy_tracking_section(json.loads(pd_file.read_text()) if pd_file.exists() else None, ablations,
                                       sorted((results_dir.parent / "figures").glob("*.png")))]
@@ -431,13 +436,10 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
         parts.append(sensing_presets_section(runs))
     if policy_manifests:
         parts.append(training_section(policy_manifests))
-    ablations = {name: json.loads((results_dir / f"ablation_{name}.json").read_text())
-                 for name in ("horizontal", "vertical", "ood") if (results_dir / f"ablation_{name}.json").exists()}
+    ablations = read_ablations(results_dir)
     if ablations:
         parts.append(ablation_section(ablations))
-    seeds = {path.name.removeprefix("seed"): {name: json.loads((path / f"ablation_{name}.json").read_text())
-                                              for name in ("horizontal", "vertical", "ood") if (path / f"ablation_{name}.json").exists()}
-             for path in sorted((results_dir / "seeds").glob("seed*"))}
+    seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((results_dir / "seeds").glob("seed*"))}
     if any(seeds.values()):
         parts.append(seeds_section({seed: r for seed, r in seeds.items() if r}))
     times = results_dir / "pipeline_times.json"
