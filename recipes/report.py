@@ -2,7 +2,7 @@
 
     python recipes/report.py
 
-Reads ``results/*.json`` (PD baseline, ...), the shipped policies' manifests, the section files
+Reads ``results/*.json`` (PD baseline, ...), every PPO run's manifest (``results/policies/``), the section files
 in ``docs/results/`` (written by the estimator and ablation recipes), and the PPO runs' logs in
 ``runs/`` if present (learning curves), and writes ``docs/results.md`` with the paper's figures
 beside ours.
@@ -14,7 +14,6 @@ from pathlib import Path
 
 from quadwind_trl.evaluation.figures import learning_curves
 from quadwind_trl.evaluation.report import build_report, policy_runs
-from quadwind_trl.manifest import CHECKPOINT_DIR
 
 PREAMBLE = """# Results: ours beside the paper's
 
@@ -30,11 +29,11 @@ def main() -> None:
     parser.add_argument("--sections", type=Path, default=Path("docs/results"))
     parser.add_argument("--out", type=Path, default=Path("docs/results.md"))
     parser.add_argument("--runs", type=Path, default=Path("runs"),
-                        help="the PPO runs (RUNS/ppo_<regime>): their manifests, else the shipped policies', and "
-                             "their logs, which redraw figures/learning_curves.png beside --out")
+                        help="the PPO runs (RUNS/ppo_*): their manifests, else the kept ones in RESULTS/policies/, "
+                             "and their logs, which redraw figures/learning_curves.png beside --out")
     parser.add_argument("--toy", action="store_true", help="the --quick run's page: says so first, no paper columns")
     args = parser.parse_args()
-    manifests, runs = policy_runs(args.runs, CHECKPOINT_DIR)
+    manifests, runs = policy_runs(args.runs, args.results / "policies")
     if runs:
         learning_curves(runs, args.out.parent / "figures" / "learning_curves.png")
     text = build_report(args.results, args.sections, PREAMBLE, manifests, toy=args.toy)

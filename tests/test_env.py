@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 import torch
@@ -15,7 +16,6 @@ from quadwind_trl.config import (
     GRAVITY_M_S2, LEGACY_NAVIGATION, LEGACY_SENSORS, SENSOR_PRESETS, ControllerConfig, EnvConfig, ResidualConfig,
     RewardConfig, SensorChannelConfig, TrajectoryConfig, VehicleConfig, config_from_dict, with_sensor_preset,
 )
-from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.envs import HORIZONTAL, VERTICAL, QuadWindEnv, make_scenarios, trajectory_names
 from quadwind_trl.envs.rotations import quat_to_rotmat
 from quadwind_trl.envs.runner import fly
@@ -402,7 +402,7 @@ def test_navigation_error_is_the_unseen_part_of_the_tracking_error():
 
 
 # RMSEs (xy, z) of two PD episodes recorded from the code before bounded biases and the 200 Hz
-# IMU: on the locally scaled field (commit e9697ba, the shipped checkpoints' vehicle) and on the
+# IMU: on the locally scaled field (commit e9697ba, the earlier policies' vehicle) and on the
 # divergence-free stretch (commit a8d1122)
 _LEGACY_RMSE = {
     "local_scaling": (("0x1.86aafc0000000p-2", "0x1.4b45ac0000000p-2"), None),
@@ -415,7 +415,7 @@ def test_legacy_walk_preset_reproduces_the_pre_gauss_markov_flight_bit_for_bit(a
     """Two horizontal PD episodes (the quick subset's rows 0 and 9: loiter and lawnmower, 8 s of
     pattern from an airborne start) flown with the legacy sensors reproduce, to the last bit, the
     code that recorded them (static rotor thrust, as then): with ``anisotropy="local_scaling"``
-    the vehicle the shipped checkpoints and their committed results were made on."""
+    the vehicle the earlier policies and their results were made on."""
     from quadwind_trl.evaluation.tracking import fly_sweep, quick_subset
     from quadwind_trl.regimes import HORIZONTAL_SWEEP
 
@@ -433,10 +433,11 @@ def test_legacy_walk_preset_reproduces_the_pre_gauss_markov_flight_bit_for_bit(a
 
 
 @pytest.mark.parametrize("regime", ["horizontal", "vertical"])
-def test_shipped_policies_load_their_config_as_the_legacy_preset(regime):
+def test_configs_saved_before_bounded_biases_load_as_the_legacy_preset(regime):
     import json
 
-    saved = json.loads((CHECKPOINT_DIR / f"policy_{regime}.json").read_text())["env_spec"]["env_config"]
+    # the env configs the earlier vehicle's policies saved (tests/data: copied from their manifests)
+    saved = json.loads((Path(__file__).parent / "data" / "legacy_env_configs.json").read_text())[regime]["env_config"]
     cfg = config_from_dict(EnvConfig, saved)
     assert cfg.sensors == LEGACY_SENSORS and cfg.navigation == LEGACY_NAVIGATION
     assert cfg.turbulence.anisotropy == "local_scaling"  # the field they were trained in

@@ -12,7 +12,8 @@ from quadwind_trl.evaluation.replay import mismatches, replay
 DATA = Path(__file__).parent / "data"
 
 
-@pytest.mark.parametrize("sweep", ["horizontal", "vertical"])
+# one mechanism for both sweeps; the vertical record (87 s, the longer patterns) runs with -m slow
+@pytest.mark.parametrize("sweep", ["horizontal", pytest.param("vertical", marks=pytest.mark.slow)])
 def test_sweep_slice_replays_bit_for_bit(sweep):
     record = json.loads((DATA / f"replay_{sweep}.json").read_text())
     start, stop = record["episodes"]

@@ -24,6 +24,11 @@ def test_quick_reproduce_runs_every_stage(tmp_path):
     for regime in ("horizontal", "vertical"):
         assert (out / f"estimator_{regime}.pt").exists()
         assert (out / f"ppo_{regime}" / "policy.pt").exists()
+    # the horizontal PPO recipe as shipped, at --quick scale (its own test would fly it again)
+    m = json.loads((out / "ppo_horizontal" / "policy.json").read_text())
+    assert m["frames"] == 1024 and m["env_spec"]["regime"] == "horizontal" and m["metrics"]["episodes"] == 1
+    assert m["env_spec"]["env_config"]["reward"]["w_z"] == 1.0
+    assert m["env_spec"]["env_config"]["controller"]["feedback"] == "estimate"  # the shipped vehicle by default
     for sweep in ("horizontal", "vertical"):
         result = json.loads((out / "results" / f"ablation_{sweep}.json").read_text())
         dist = result["rmse_xy"]["distribution"]

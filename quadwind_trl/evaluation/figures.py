@@ -224,27 +224,37 @@ def _csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 def learning_curves(run_dirs: dict[str, Path], path: Path) -> Path:
     """PPO learning curves from the runs' CSV logs: training reward per step, the deterministic
-    evaluation's improvement over PD, and the policy's exploration scale, against frames."""
-    fig, ax = plt.subplots(1, 3, figsize=(14, 4))
-    for label, run in run_dirs.items():
+    evaluation's improvement over PD, and the policy's exploration scale, against frames. One row
+    per regime; runs of one kind (``ppo_<regime>[_trained_blind][_seed<k>]``) share a colour, so
+    the seeds' spread shows as the spread of same-coloured lines."""
+    regimes = [r for r in ("horizontal", "vertical") if any(f"_{r}" in name for name in run_dirs)]
+    fig, axes = plt.subplots(len(regimes), 3, figsize=(14, 4 * len(regimes)), squeeze=False)
+    colours: dict[str, str] = {}
+    for name, run in run_dirs.items():
+        regime = next(r for r in regimes if f"_{r}" in name)
+        kind = name.removeprefix(f"ppo_{regime}").split("_seed")[0].strip("_") or "wind-aware"
+        colour = colours.setdefault(kind, f"C{len(colours)}")
+        ax = axes[regimes.index(regime)]
+        style = {"color": colour, "label": name.removeprefix("ppo_"), "alpha": 0.8}
         scalars = Path(run) / "logs" / "ppo" / "scalars"
         frames, reward = _csv(scalars / "train" / "reward_mean.csv")
         window = max(1, len(reward) // 20)
         smooth = np.convolve(reward, np.ones(window) / window, mode="valid")
-        ax[0].plot(frames[window - 1 :], smooth, label=label)
+        ax[0].plot(frames[window - 1 :], smooth, **style)
         improvement = scalars / "eval" / "improvement_rmse_xy_pct.csv"
         if improvement.exists():
             f, v = _csv(improvement)
-            ax[1].plot(f, v, "o-", label=label)
+            ax[1].plot(f, v, "o-", **style)
         f, v = _csv(scalars / "train" / "action_scale.csv")
-        ax[2].plot(f, v, label=label)
-    ax[0].set(xlabel="frames", ylabel="reward per step (moving mean)", title="training reward")
-    ax[1].axhline(0, color="k", lw=0.8)
-    ax[1].set(xlabel="frames", ylabel="xy RMSE reduction vs PD (%)", title="deterministic evaluation")
-    ax[2].set(xlabel="frames", ylabel="pre-tanh std", title="exploration scale")
-    for a in ax:
-        a.legend()
-        a.grid(alpha=0.3)
+        ax[2].plot(f, v, **style)
+    for regime, ax in zip(regimes, axes):
+        ax[0].set(xlabel="frames", ylabel="reward per step (moving mean)", title=f"{regime}: training reward")
+        ax[1].axhline(0, color="k", lw=0.8)
+        ax[1].set(xlabel="frames", ylabel="xy RMSE reduction vs PD (%)", title=f"{regime}: deterministic evaluation")
+        ax[2].set(xlabel="frames", ylabel="pre-tanh std", title=f"{regime}: exploration scale")
+        for a in ax:
+            a.legend(fontsize="small")
+            a.grid(alpha=0.3)
     return _save(fig, path)
 
 

@@ -288,17 +288,20 @@ def pipeline_section(times: dict[str, dict]) -> str:
 
 
 def training_section(manifests: dict[str, dict]) -> str:
-    """The shipped policies' training runs (from their JSON manifests): budget, wall time and the
+    """Every PPO training run (from its JSON manifest): command, budget, wall time and the
     periodic deterministic evaluations against PD."""
     lines = ["## PPO training runs", "",
              "Each run's periodic evaluation flies a fixed set of held-out sweep episodes deterministically, paired with PD",
-             "(`improvement` = 1 - mean RL xy RMSE / mean PD xy RMSE). Frames are policy decisions at 10 Hz (docs/rl.md).", "",
-             "| regime | command | decisions | wall time | evaluations: frames -> xy RMSE reduction vs PD (win rate) |",
-             "|---|---|---|---|---|"]
-    for regime, m in manifests.items():
+             "(`improvement` = 1 - mean RL xy RMSE / mean PD xy RMSE). Frames are policy decisions at 10 Hz (docs/rl.md).",
+             "The runs' manifests are `results/policies/<run>.json`, beside the kept policy.", "",
+             "| run | command | commit | decisions | wall time | evaluations: frames -> xy RMSE reduction vs PD (win rate) |",
+             "|---|---|---|---|---|---|"]
+    for name, m in manifests.items():
         evals = "; ".join(f"{int(e['frames']):,} -> {e['improvement_rmse_xy_pct']:+.1f} % ({e['win_rate']:.2f})"
                           for e in m.get("evals", []))
-        lines.append(f"| {regime} | `python recipes/{m['command'].split('recipes/', 1)[-1]}` | {m['frames']:,} | {wall_time(m['wall_time_s'])} | {evals} |")
+        command = "python recipes/" + m["command"].split("recipes/", 1)[-1]
+        lines.append(f"| {name} | `{command}` | `{str(m.get('git_commit'))[:7]}` | {m['frames']:,} | "
+                     f"{wall_time(m['wall_time_s'])} | {evals} |")
     lines += ["", "![learning curves](figures/learning_curves.png)", ""]
     return "\n".join(lines)
 
@@ -392,16 +395,16 @@ def sensing_presets_section(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def policy_runs(runs_dir: Path, shipped_dir: Path) -> tuple[dict[str, dict], dict[str, Path]]:
-    """Per regime, the PPO manifest to report (``RUNS/ppo_<regime>/policy.json``, else the shipped
-    ``policy_<regime>.json``) and the run directories whose logs can draw learning curves."""
-    manifests = {}
-    for regime in ("horizontal", "vertical"):
-        for path in (runs_dir / f"ppo_{regime}" / "policy.json", shipped_dir / f"policy_{regime}.json"):
-            if path.exists():
-                manifests[regime] = json.loads(path.read_text())
-                break
-    logged = {r: runs_dir / f"ppo_{r}" for r in manifests if (runs_dir / f"ppo_{r}" / "logs").exists()}
+def policy_runs(runs_dir: Path, kept_dir: Path) -> tuple[dict[str, dict], dict[str, Path]]:
+    """Every PPO run by name (``ppo_horizontal_seed0``, ...): its manifest, the run's own
+    ``RUNS/<name>/policy.json`` else the kept copy ``KEPT/<name>.json`` (``results/policies/``, in
+    the repository), and the run directories whose logs can draw learning curves (``runs/`` is
+    local: a fresh clone has the manifests but no curves)."""
+    paths = {path.parent.name: path for path in sorted(runs_dir.glob("ppo_*/policy.json"))}
+    for path in sorted(kept_dir.glob("ppo_*.json")):
+        paths.setdefault(path.stem, path)
+    manifests = {name: json.loads(paths[name].read_text()) for name in sorted(paths)}
+    logged = {name: runs_dir / name for name in manifests if (runs_dir / name / "logs").exists()}
     return manifests, logged
 
 
