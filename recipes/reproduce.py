@@ -155,7 +155,9 @@ def ship_median_seeds() -> None:
     """Ship the median seed's policy of each regime and kind (``quadwind_trl/checkpoints/
     policy_<regime>[_trained_blind].pt``), and make the wind-aware median seed's ablations the
     headline results (``results/ablation_<sweep>.json``; they record the kept policy they flew,
-    byte for byte the shipped one)."""
+    byte for byte the shipped one) with their figures (``docs/figures/``)."""
+    from quadwind_trl.evaluation.figures import ABLATION_FIGURES
+
     for regime in REGIMES:
         for kind in POLICY_KINDS:
             seed = median_seed(regime, kind)
@@ -165,6 +167,9 @@ def ship_median_seeds() -> None:
     for sweep, regime in (("horizontal", "horizontal"), ("vertical", "vertical"), ("ood", "horizontal")):
         seed = median_seed(regime, "aware")
         shutil.copyfile(SEED_RESULTS / f"seed{seed}" / f"ablation_{sweep}.json", ROOT / "results" / f"ablation_{sweep}.json")
+        panels, trace = ABLATION_FIGURES[sweep]
+        for name in [name for _, name in panels] + ([trace[-1]] if trace else []):
+            shutil.copyfile(SEED_RESULTS / f"seed{seed}" / "figures" / name, ROOT / "docs" / "figures" / name)
 
 
 def main() -> None:

@@ -53,3 +53,51 @@ def test_quick_reproduce_runs_every_stage(tmp_path):
     assert check.returncode == 0, check.stdout[-3000:] + check.stderr[-3000:]
     for name in ("pd", "blind", "aware"):
         assert f"  {name}: 40/40 values bit-identical" in check.stdout, check.stdout
+
+
+def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_path, monkeypatch):
+    """Per regime and policy kind the seed in the middle by its own sweep's xy RMSE reduction is
+    shipped (policy and manifest), and the wind-aware median seed's ablations and figures become
+    the headline ones (the OOD sweep follows the horizontal seed: same policy)."""
+    import importlib.util
+
+    from quadwind_trl.evaluation.figures import ABLATION_FIGURES
+
+    spec = importlib.util.spec_from_file_location("reproduce", ROOT / "recipes" / "reproduce.py")
+    reproduce = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "reproduce", reproduce)  # its dataclasses look their module up
+    spec.loader.exec_module(reproduce)
+    for name, path in (("ROOT", tmp_path), ("CHECKPOINTS", tmp_path / "checkpoints"),
+                       ("SEED_POLICIES", tmp_path / "policies"), ("SEED_RESULTS", tmp_path / "seeds")):
+        monkeypatch.setattr(reproduce, name, path)
+    # xy RMSE reduction (%) of each seed's policies on the regime's own sweep
+    scores = {("horizontal", "aware"): (40.0, 50.0, 30.0), ("horizontal", "trained_blind"): (1.0, 3.0, 2.0),
+              ("vertical", "aware"): (10.0, 20.0, 30.0), ("vertical", "trained_blind"): (5.0, -5.0, 0.0)}
+    for seed in reproduce.SEEDS:
+        folder = tmp_path / "seeds" / f"seed{seed}"
+        (folder / "figures").mkdir(parents=True)
+        for sweep, regime in (("horizontal", "horizontal"), ("vertical", "vertical"), ("ood", "horizontal")):
+            block = {kind: {"improvement": scores[regime, kind][seed]} for kind in reproduce.POLICY_KINDS}
+            (folder / f"ablation_{sweep}.json").write_text(json.dumps({"rmse_xy": block, "seed": seed}))
+            panels, trace = ABLATION_FIGURES[sweep]
+            for figure in [name for _, name in panels] + ([trace[-1]] if trace else []):
+                (folder / "figures" / figure).write_text(f"{sweep} seed {seed}")
+        for regime in reproduce.REGIMES:
+            for kind in reproduce.POLICY_KINDS:
+                kept = reproduce.kept_policy(regime, kind, seed)
+                kept.parent.mkdir(parents=True, exist_ok=True)
+                for suffix in (".pt", ".json"):
+                    kept.with_suffix(suffix).write_text(f"{regime} {kind} seed {seed}")
+    (tmp_path / "results").mkdir()
+    (tmp_path / "docs" / "figures").mkdir(parents=True)
+    reproduce.ship_median_seeds()
+    shipped = {"policy_horizontal": 0, "policy_horizontal_trained_blind": 2, "policy_vertical": 1,
+               "policy_vertical_trained_blind": 2}
+    for name, seed in shipped.items():
+        regime, kind = name.split("_", 2)[1], "trained_blind" if "blind" in name else "aware"
+        for suffix in (".pt", ".json"):
+            assert (tmp_path / "checkpoints" / f"{name}{suffix}").read_text() == f"{regime} {kind} seed {seed}", name
+    for sweep, seed in (("horizontal", 0), ("vertical", 1), ("ood", 0)):
+        assert json.loads((tmp_path / "results" / f"ablation_{sweep}.json").read_text())["seed"] == seed
+        panels, _ = ABLATION_FIGURES[sweep]
+        assert (tmp_path / "docs" / "figures" / panels[0][1]).read_text() == f"{sweep} seed {seed}"
