@@ -86,14 +86,15 @@ def test_seed_table_reports_every_seed_and_the_mean_and_range():
     from quadwind_trl.evaluation.report import seeds_section
 
     def result(aware: float, blind: float) -> dict:
-        block = {"aware": {"improvement": aware, "wins": 200, "n": 225}, "trained_blind": {"improvement": blind},
+        block = {"aware": {"improvement": aware, "wins": 200, "n": 225}, "trained_blind": {"improvement": blind, "wins": 190, "n": 225},
                  "trained_perception": {"improvement": aware - blind}}
         return {"horizontal": {"rmse_xy": block}}
 
     text = seeds_section({"0": result(50.0, 30.0), "1": result(40.0, 35.0), "2": result(60.0, 20.0)})
-    rows = {line.split(" | ")[0][2:]: line.split(" | ")[1:] for line in text.splitlines() if line.startswith("| ")}
-    assert rows["1"][0] == "+40.0 (200/225)" and rows["2"][4] == "+20.0" and rows["0"][5] == "+20.0"
-    mean = rows["mean (range)"]
-    assert mean[0] == "+50.0 (+40.0 to +60.0)"  # horizontal aware
-    assert mean[4] == "+28.3 (+20.0 to +35.0)" and mean[5] == "+21.7 (+5.0 to +40.0)"  # trained blind, perception
-    assert mean[1] == "-"  # no vertical results: no made-up column
+    rows = {tuple(line.split(" | ")[:2]): line.split(" | ")[2:] for line in text.splitlines() if line.startswith("| ")}
+    aware = rows["| horizontal xy", "wind-aware vs PD"]
+    assert aware[:3] == ["+50.0 (200/225)", "+40.0 (200/225)", "+60.0 (200/225)"]
+    assert aware[3] == "+50.0 (+40.0 to +60.0) |"
+    assert rows["| horizontal xy", "trained blind vs PD"][3] == "+28.3 (+20.0 to +35.0) |"
+    assert rows["| horizontal xy", "perception: wind-aware vs trained blind"][3] == "+21.7 (+5.0 to +40.0) |"
+    assert not any(sweep != "| horizontal xy" for sweep, _ in rows if sweep != "| sweep")  # no made-up rows

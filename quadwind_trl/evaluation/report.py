@@ -228,6 +228,9 @@ def ablation_section(results: dict[str, dict]) -> str:
 
 SEED_SWEEPS = (("horizontal", "rmse_xy", "horizontal xy"), ("vertical", "rmse_xy", "vertical xy"),
                ("vertical", "rmse_z", "vertical z"), ("ood", "rmse_xy", "OOD xy"))
+# per sweep and axis, the measures reported across seeds: (key in the block, label, with wins)
+SEED_MEASURES = (("aware", "wind-aware vs PD", True), ("trained_blind", "trained blind vs PD", True),
+                 ("trained_perception", "perception: wind-aware vs trained blind", False))
 
 
 def _spread(values: list[float]) -> str:
@@ -236,38 +239,28 @@ def _spread(values: list[float]) -> str:
 
 def seeds_section(seeds: dict[str, dict[str, dict]]) -> str:
     """Every seed's paired ablation (``results/seeds/<seed>/ablation_<sweep>.json``): RMSE reduction
-    against PD of the wind-aware and the trained-blind policies, and perception between them, per
-    seed, then the mean and range over the seeds."""
+    against PD of the wind-aware and the trained-blind policies, and perception between them, one
+    column per seed, then the mean and range over the seeds (a measure no seed flew is left out)."""
     lines = ["## Across training seeds", "",
              "Each seed trains its own wind-aware and trained-blind policy (`recipes/reproduce.py --full`) and flies the",
-             "full paired ablation; the shipped policies are the median seed's by its own sweep. RMSE reduction against PD",
-             "(%, positive = better than PD), wins over PD, and perception = wind-aware vs trained-blind (%).", "",
-             "| seed | " + " | ".join(f"{label}: aware (wins)" for _, _, label in SEED_SWEEPS)
-             + " | horizontal xy: trained blind | horizontal xy: perception | OOD worst aware episode (m) |",
-             "|" + "---|" * (len(SEED_SWEEPS) + 4)]
-    columns: dict[str, list[float]] = {}
-    for seed, results in seeds.items():
-        cells = []
-        for sweep, metric, label in SEED_SWEEPS:
-            block = results.get(sweep, {}).get(metric)
-            if block is None:
-                cells.append("-")
+             "full paired ablation (`results/seeds/seed<k>/`); the shipped policies are the median seed's by its own sweep.",
+             "RMSE reduction in % (positive = the first controller tracks better), wins in brackets.", "",
+             "| sweep | measure | " + " | ".join(f"seed {seed}" for seed in seeds) + " | mean (range) |",
+             "|---|---|" + "---|" * (len(seeds) + 1)]
+    for sweep, metric, label in SEED_SWEEPS:
+        for key, measure, with_wins in SEED_MEASURES:
+            blocks = {seed: r.get(sweep, {}).get(metric, {}).get(key) for seed, r in seeds.items()}
+            if not any(blocks.values()):
                 continue
-            a = block["aware"]
-            columns.setdefault(label, []).append(a["improvement"])
-            cells.append(f"{a['improvement']:+.1f} ({a['wins']}/{a['n']})")
-        h = results.get("horizontal", {}).get("rmse_xy", {})
-        for key, name in (("trained_blind", "trained blind"), ("trained_perception", "perception")):
-            if key in h:
-                columns.setdefault(name, []).append(h[key]["improvement"])
-                cells.append(f"{h[key]['improvement']:+.1f}")
-            else:
-                cells.append("-")
-        ood = results.get("ood", {}).get("rmse_xy")
-        cells.append(f"{ood['worst']['aware']:.2f}" if ood else "-")
-        lines.append(f"| {seed} | " + " | ".join(cells) + " |")
-    order = [label for _, _, label in SEED_SWEEPS] + ["trained blind", "perception"]
-    lines.append("| mean (range) | " + " | ".join(_spread(columns[k]) if k in columns else "-" for k in order) + " | |")
+            cells = ["-" if b is None else f"{b['improvement']:+.1f}" + (f" ({b['wins']}/{b['n']})" if with_wins else "")
+                     for b in blocks.values()]
+            spread = _spread([b["improvement"] for b in blocks.values() if b is not None])
+            lines.append(f"| {label} | {measure} | " + " | ".join(cells) + f" | {spread} |")
+    for key, measure in (("aware", "wind-aware"), ("trained_blind", "trained blind")):
+        worst = [r.get("ood", {}).get("rmse_xy", {}).get("worst", {}).get(key) for r in seeds.values()]
+        if any(w is not None for w in worst):
+            lines.append(f"| OOD xy | worst {measure} episode (m) | "
+                         + " | ".join("-" if w is None else f"{w:.2f}" for w in worst) + " | |")
     lines.append("")
     return "\n".join(lines)
 
