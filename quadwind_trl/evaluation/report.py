@@ -293,7 +293,7 @@ def training_section(manifests: dict[str, dict]) -> str:
         evals = "; ".join(f"{int(e['frames']):,} -> {e['improvement_rmse_xy_pct']:+.1f} % ({e['win_rate']:.2f})"
                           for e in m.get("evals", []))
         command = "python recipes/" + m["command"].split("recipes/", 1)[-1]
-        lines.append(f"| {name} | `{command}` | `{str(m.get('git_commit'))[:7]}` | {m['frames']:,} | "
+        lines.append(f"| {name} | `{command}` | `{m.get('git_commit')}` | {m['frames']:,} | "
                      f"{wall_time(m['wall_time_s'])} | {evals} |")
     lines += ["", "![learning curves](figures/learning_curves.png)", ""]
     return "\n".join(lines)
