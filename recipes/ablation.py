@@ -7,6 +7,7 @@ without wind inputs, on identical replayed episodes of the paper's evaluation sw
     python recipes/ablation.py --quick                           # small subsets, short flights
     python recipes/ablation.py --sweeps horizontal --batch 45          # five batches of 45 episodes
     python recipes/ablation.py --verify results/ablation_horizontal.json --chunks 0:1
+    python recipes/ablation.py --resummarize results/seeds/seed0/ablation_*.json
 
 By default the shipped checkpoints are used (``quadwind_trl/checkpoints/policy_<regime>.pt``,
 ``policy_<regime>_trained_blind.pt`` and ``estimator_<regime>.pt``); without a trained-blind
@@ -17,7 +18,10 @@ the fastest), recorded in the file. ``--verify FILE`` writes nothing: it re-flie
 ``--chunks A:B`` of a results file exactly as the file records them (sweep, controllers, policy,
 estimator, flights, simulator, batch layout) and reports, per controller, how many per-episode
 values agree to the bit (exit status 1 if any differs). A batch is the unit because only the
-recorded layout replays bit for bit (``evaluation.replay.verify_ablation``).
+recorded layout replays bit for bit (``evaluation.replay.verify_ablation``). ``--resummarize
+FILE...`` flies nothing: it recomputes a file's tables from its own per-episode table with the
+current summary code (kept: the flight's command and commit; added: ``summarized_by``) and says
+which tables it added or changed.
 """
 from __future__ import annotations
 
@@ -30,7 +34,8 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.evaluation import figures
-from quadwind_trl.evaluation.ablation import CONTROLLERS, fly_controllers, policy_compile_step, summarize_ablation
+from quadwind_trl.evaluation.ablation import (CONTROLLERS, episode_table, episode_table_from_json, fly_controllers,
+                                              policy_compile_step, summarize_ablation)
 from quadwind_trl.evaluation.replay import verify_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
@@ -57,12 +62,18 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=None, help="episodes flown at once (default: the whole sweep)")
     parser.add_argument("--verify", type=Path, default=None, help="re-fly --chunks of this results file and compare")
     parser.add_argument("--chunks", default=None, help="with --verify: batches START:STOP of the file's layout (default all)")
+    parser.add_argument("--resummarize", type=Path, nargs="+", default=None,
+                        help="recompute these results files' tables from their episode tables (flies nothing)")
     parser.add_argument("--eager", action="store_true",
                         help="fly the simulator eagerly (default: as the policy trained, compiled unless it recorded otherwise)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     if args.verify is not None:
         verify(args)
+        return
+    if args.resummarize is not None:
+        for path in args.resummarize:
+            resummarize(path)
         return
     results_dir = args.results or Path("runs/quick/results" if args.quick else "results")
     fig_dir = args.figures or Path("runs/quick/figures" if args.quick else "docs/figures")
@@ -92,7 +103,7 @@ def main() -> None:
         results = fly_controllers(regime, scenarios, policy_path, estimator, controllers, batch=batch,
                                   progress=True, config_override=override, compile_step=compile_step,
                                   blind_policy_path=blind_path if flies_blind else None)
-        summary = summarize_ablation(sweep, scenarios, results)
+        summary = summarize_ablation(name, episode_table(scenarios, results), controllers)
         summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
                        blind_policy=repo_relative(blind_path) if flies_blind else None,
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
@@ -101,8 +112,21 @@ def main() -> None:
         paths = figures.ablation_figures(name, scenarios, results, summary, fig_dir)
         aware = summary["rmse_xy"]["aware"]
         print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD, xy RMSE reduction: "
-              f"{aware['improvement']:.1f} % (95 % CI {aware['ci_low']:.1f}-{aware['ci_high']:.1f}), "
+              f"{aware['improvement']:.1f} % (95 % CI {aware['ci_low']:.1f} to {aware['ci_high']:.1f}), "
               f"wins {aware['wins']}/{aware['n']}; figures: {', '.join(str(p) for p in paths)}")
+
+
+def resummarize(path: Path) -> None:
+    recorded = json.loads(path.read_text())
+    table = episode_table_from_json(recorded["episodes_table"])
+    summary = summarize_ablation(recorded["sweep"], table, recorded["controllers"])
+    if summary["episodes_table"] != recorded["episodes_table"]:
+        sys.exit(f"{path}: the episode table does not survive the round trip; nothing written")
+    added = [key for key in summary if key not in recorded]
+    changed = [key for key in summary if key in recorded and summary[key] != recorded[key]]
+    write_json(path, recorded | summary | {"summarized_by": {"command": command_line(sys.argv), "git_commit": git_commit()}})
+    print(f"{path} (flown at {recorded['git_commit']}): tables added: {', '.join(added) or 'none'}; "
+          f"changed: {', '.join(changed) or 'none'}")
 
 
 def verify(args: argparse.Namespace) -> None:

@@ -3,12 +3,13 @@ the others, and its comparison with the wind-aware policy is summarised beside t
 from __future__ import annotations
 
 import copy
+import json
 
 import pytest
 import torch
 
 from quadwind_trl.estimator import load_estimator
-from quadwind_trl.evaluation.ablation import fly_controllers, summarize_ablation
+from quadwind_trl.evaluation.ablation import episode_table, episode_table_from_json, fly_controllers, summarize_ablation
 from quadwind_trl.evaluation.report import perception_tables
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import CHECKPOINT_DIR
@@ -47,7 +48,11 @@ def test_trained_blind_flies_the_same_worlds(tmp_path, episodes):
                               ("pd", "blind", "aware", "trained_blind"), config_override=override, blind_policy_path=blind)
     for metric in ("rmse_xy", "rmse_z", "crashed"):
         assert torch.equal(getattr(results["trained_blind"], metric), getattr(results["blind"], metric))
-    summary = summarize_ablation(sweep, scenarios, results)
+    summary = summarize_ablation(sweep.name, episode_table(scenarios, results), list(results))
+    # a results file's tables can be recomputed from its persisted episode table, to the bit
+    persisted = json.loads(json.dumps(summary["episodes_table"]))
+    assert summarize_ablation(sweep.name, episode_table_from_json(persisted), list(results)) == summary
+    assert set(summary["rmse_z"]) >= {"aware", "trained_blind", "trained_perception", "decomposition"}
     block = summary["rmse_xy"]
     # perception between the two trained policies is scored like the paper's zeroing: aware vs blind
     assert block["trained_perception"]["improvement"] == pytest.approx(

@@ -19,16 +19,15 @@ them (``docs/simulator.md``, exact replay; the flights go through
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 
 from ..config import EnvConfig, config_from_dict
 from ..envs.runner import FlightResults
-from ..envs.trajectories import trajectory_name
+from ..envs.trajectories import trajectory_ids, trajectory_name
 from ..estimator import EstimatorBundle
-from ..regimes import EvalSweep
 from ..rl.envs import make_env, policy_ema_tau_s
 from ..rl.paired import fly_paired, improvement
 from ..rl.policy import load_policy
@@ -110,13 +109,26 @@ def fly_controllers(
     return fly_paired(flights, scenarios, log_keys=TRACE_KEYS, progress=progress, chunks=chunks)
 
 
-def _episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults]) -> TensorDict:
+def episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults]) -> TensorDict:
+    """``[episodes]`` table of each episode's world (trajectory, wind, intensity, case) and every
+    controller's RMSEs and crash flag, keyed ``<controller>_<metric>``."""
     table = scenarios.select("traj_id", "wind_speed_ref_m_s", "turb_intensity", "case_id", strict=False).clone()
     for name, res in results.items():
         table[f"{name}_rmse_xy"] = res.rmse_xy
         table[f"{name}_rmse_z"] = res.rmse_z
         table[f"{name}_rmse"] = res.rmse
         table[f"{name}_crashed"] = res.crashed
+    return table
+
+
+def episode_table_from_json(episodes: dict[str, list]) -> TensorDict:
+    """The :func:`episode_table` a results file persisted (its ``episodes_table``), exactly: every
+    RMSE was a float32, which a JSON double holds without rounding."""
+    columns = dict(episodes)
+    table = TensorDict({"traj_id": trajectory_ids(columns.pop("trajectory"))}, batch_size=[len(columns["case_id"])])
+    for key, values in columns.items():
+        dtype = torch.bool if key.endswith("_crashed") else torch.int64 if key == "case_id" else torch.float32
+        table[key] = torch.tensor(values, dtype=dtype)
     return table
 
 
@@ -138,32 +150,33 @@ def _grouped_decomposition(table: TensorDictBase, metric: str, labels: torch.Ten
     return out
 
 
-def summarize_ablation(sweep: EvalSweep, scenarios: TensorDictBase, results: dict[str, FlightResults]) -> dict:
-    """Everything the paper's tables need, JSON-ready: paired statistics of each policy variant
-    against PD, the decomposition by wind level and by trajectory, and per-episode RMSEs."""
-    table = _episode_table(scenarios, results)
-    metrics = ("rmse_xy", "rmse_z", "rmse") if sweep.name == "vertical" else ("rmse_xy", "rmse")
-    summary: dict = {"sweep": sweep.name, "episodes": scenarios.batch_size[0], "controllers": list(results)}
-    for metric in metrics:
+def summarize_ablation(sweep_name: str, table: TensorDictBase, controllers: Sequence[str]) -> dict:
+    """Everything the paper's tables need, JSON-ready, from an :func:`episode_table`: paired
+    statistics of each policy variant against PD, the decomposition by wind level and by
+    trajectory, and per-episode RMSEs; for both axes on every sweep (a horizontal policy that
+    tracks xy better by losing height must show it)."""
+    names = list(controllers)
+    summary: dict = {"sweep": sweep_name, "episodes": table.batch_size[0], "controllers": names}
+    for metric in ("rmse_xy", "rmse_z", "rmse"):
         block: dict = {}
-        for name in results:
+        for name in names:
             if name != "pd":
                 block[name] = paired_summary(table[f"pd_{metric}"], table[f"{name}_{metric}"])
             stats = summarize(table[f"{name}_{metric}"])
             block.setdefault("distribution", {})[name] = stats.as_dict()
-        if {"trained_blind", "aware"} <= set(results):
+        if {"trained_blind", "aware"} <= set(names):
             # aware vs the policy trained without wind inputs: perception's value, paired
             block["trained_perception"] = paired_summary(table[f"trained_blind_{metric}"], table[f"aware_{metric}"])
-        if {"pd", "blind", "aware"} <= set(results):
+        if {"pd", "blind", "aware"} <= set(names):
             block["decomposition"] = decompose(table[f"pd_{metric}"], table[f"blind_{metric}"], table[f"aware_{metric}"]).as_dict()
             block["by_wind"] = {f"{k:g}": v for k, v in _grouped_decomposition(table, metric, table["wind_speed_ref_m_s"]).items()}
             block["by_trajectory"] = {
                 trajectory_name(k): v for k, v in _grouped_decomposition(table, metric, table["traj_id"]).items()
             }
-        block["median"] = {name: table[f"{name}_{metric}"].median().item() for name in results}
-        block["worst"] = {name: table[f"{name}_{metric}"].max().item() for name in results}
+        block["median"] = {name: table[f"{name}_{metric}"].median().item() for name in names}
+        block["worst"] = {name: table[f"{name}_{metric}"].max().item() for name in names}
         summary[metric] = block
-    summary["crashed"] = {name: int(table[f"{name}_crashed"].sum()) for name in results}
+    summary["crashed"] = {name: int(table[f"{name}_crashed"].sum()) for name in names}
     episodes = {key: table[key].tolist() for key in table.keys()}
     # persisted by name: an id is only a position in this process's registry
     episodes["trajectory"] = [trajectory_name(i) for i in episodes.pop("traj_id")]

@@ -112,10 +112,15 @@ def _pm(mean: float, std: float) -> str:
     return f"{mean:.3f} +- {std:.3f}"
 
 
+def _ci(block: dict) -> str:
+    """A paired bootstrap interval; "to", not a dash, since either end may be negative."""
+    return f"{block['ci_low']:.1f} to {block['ci_high']:.1f}"
+
+
 def _stats_row(label: str, block: dict, ref: dict | None) -> str:
     d, a = block["distribution"], block["aware"]
     ours = (f"| {label} | {a['n']} | {_pm(d['pd']['mean'], d['pd']['std'])} | {_pm(d['aware']['mean'], d['aware']['std'])} | "
-            f"{a['improvement']:.1f} % ({a['ci_low']:.1f}-{a['ci_high']:.1f}) | {a['wins']}/{a['n']} |")
+            f"{a['improvement']:.1f} % ({_ci(a)}) | {a['wins']}/{a['n']} |")
     if ref is None:
         return ours + " - |"
     return ours + (f" {ref['pd'][0]:.2f} / {ref['aware'][0]:.2f}, {ref['improvement']:.1f} % "
@@ -155,7 +160,7 @@ def perception_tables(blocks: dict[str, dict]) -> list[str]:
              "positive: the estimate helps); the paper's measure zeroes the wind-aware policy's own inputs instead.", ""]
     for sweep, block in blocks.items():
         t = block["trained_perception"]
-        lines += [f"{sweep.capitalize()} sweep: perception {t['improvement']:+.1f} % ({t['ci_low']:.1f}-{t['ci_high']:.1f}), "
+        lines += [f"{sweep.capitalize()} sweep: perception {t['improvement']:+.1f} % ({_ci(t)}), "
                   f"wind-aware better in {t['wins']}/{t['n']} episodes.", "",
                   "| U (m/s) | PD (m) | RL trained blind (m) | wind-aware RL (m) | perception (%) | wind-blind (zeroed) RL (m) | "
                   "perception share of the paper's decomposition (%) |",
@@ -179,13 +184,15 @@ def ablation_section(results: dict[str, dict]) -> str:
     lines += ["", "### Tracking statistics (paper Table 3)", "",
               "| regime | N | PD mean +- std (m) | wind-aware mean +- std (m) | improvement (95 % CI) | wins | paper: PD / aware, impr. (CI), wins |",
               "|---|---|---|---|---|---|---|"]
-    if "horizontal" in results:
-        lines.append(_stats_row("horizontal (xy)", results["horizontal"]["rmse_xy"], paper.TRACKING_STATS["horizontal"]))
-    if "vertical" in results:
-        lines.append(_stats_row("vertical (xy)", results["vertical"]["rmse_xy"], paper.TRACKING_STATS["vertical_xy"]))
-        lines.append(_stats_row("vertical (z)", results["vertical"]["rmse_z"], paper.TRACKING_STATS["vertical_z"]))
-    if "ood" in results:
-        lines.append(_stats_row("out of distribution (xy)", results["ood"]["rmse_xy"], None))
+    # the paper scores the horizontal regime in xy only; its z row (files flown before every sweep
+    # summarized both axes lack it) shows whether xy was bought with height
+    rows = (("horizontal", "rmse_xy", "horizontal (xy)", paper.TRACKING_STATS["horizontal"]),
+            ("horizontal", "rmse_z", "horizontal (z)", None),
+            ("vertical", "rmse_xy", "vertical (xy)", paper.TRACKING_STATS["vertical_xy"]),
+            ("vertical", "rmse_z", "vertical (z)", paper.TRACKING_STATS["vertical_z"]),
+            ("ood", "rmse_xy", "out of distribution (xy)", None), ("ood", "rmse_z", "out of distribution (z)", None))
+    lines += [_stats_row(label, results[sweep][metric], ref) for sweep, metric, label, ref in rows
+              if metric in results.get(sweep, {})]
     if "horizontal" in results:
         h = results["horizontal"]["rmse_xy"]
         with_oracle = "oracle" in h["distribution"]
@@ -220,14 +227,14 @@ def ablation_section(results: dict[str, dict]) -> str:
                   f"| mean RMSE (m) | {o['distribution']['pd']['mean']:.2f} | {o['distribution']['aware']['mean']:.2f} | {paper.OOD['pd_mean']} | {paper.OOD['aware_mean']} |",
                   f"| median RMSE (m) | {o['median']['pd']:.2f} | {o['median']['aware']:.2f} | - | - |",
                   f"| worst episode (m) | {o['worst']['pd']:.1f} | {o['worst']['aware']:.1f} | {paper.OOD['pd_worst']} | {paper.OOD['aware_worst']} |",
-                  f"| improvement | | {a['improvement']:.1f} % ({a['ci_low']:.1f}-{a['ci_high']:.1f}) | | {paper.OOD['improvement']} % |",
+                  f"| improvement | | {a['improvement']:.1f} % ({_ci(a)}) | | {paper.OOD['improvement']} % |",
                   f"| wins | | {a['wins']}/{a['n']} | | {paper.OOD['wins']}/{paper.OOD['n']} |",
                   "", "![ood](figures/ood.png)", ""]
     return "\n".join(lines)
 
 
-SEED_SWEEPS = (("horizontal", "rmse_xy", "horizontal xy"), ("vertical", "rmse_xy", "vertical xy"),
-               ("vertical", "rmse_z", "vertical z"), ("ood", "rmse_xy", "OOD xy"))
+SEED_SWEEPS = tuple((sweep, f"rmse_{axis}", f"{label} {axis}") for sweep, label in
+                    (("horizontal", "horizontal"), ("vertical", "vertical"), ("ood", "OOD")) for axis in ("xy", "z"))
 # per sweep and axis, the measures reported across seeds: (key in the block, label, with wins)
 SEED_MEASURES = (("aware", "wind-aware vs PD", True), ("trained_blind", "trained blind vs PD", True),
                  ("trained_perception", "perception: wind-aware vs trained blind", False))
@@ -329,7 +336,7 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
                    f"{headroom_pct(full['nav_rmse_xy'], full['rmse_xy']):.0f} % | {headroom_pct(full['nav_rmse_z'], full['rmse_z']):.0f} % |")
             if mode in b["aware_vs_pd"]:
                 xy, z = b["aware_vs_pd"][mode]["rmse_xy"], b["aware_vs_pd"][mode]["rmse_z"]
-                row += f" {xy['improvement']:.1f} % ({xy['ci_low']:.1f}-{xy['ci_high']:.1f}) | {xy['wins']}/{xy['n']} | {z['improvement']:.1f} % |"
+                row += f" {xy['improvement']:.1f} % ({_ci(xy)}) | {xy['wins']}/{xy['n']} | {z['improvement']:.1f} % |"
             else:
                 row += " - | - | - |"
             lines.append(row)
@@ -357,7 +364,7 @@ def toy_tracking_section(pd: dict | None, ablations: dict[str, dict], figures: l
         block = result["rmse_xy"]
         d, a = block["distribution"], block["aware"]
         lines.append(f"| {name} | {a['n']} | {d['pd']['mean']:.3f} | {d['aware']['mean']:.3f} | "
-                     f"{a['improvement']:.1f} % ({a['ci_low']:.1f} to {a['ci_high']:.1f}) | {a['wins']}/{a['n']} |")
+                     f"{a['improvement']:.1f} % ({_ci(a)}) | {a['wins']}/{a['n']} |")
     if pd is not None and not ablations:
         for name, sweep in pd["sweeps"].items():
             a = sweep["tables"]["rmse_xy"]["all"]
