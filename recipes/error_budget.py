@@ -7,8 +7,8 @@ the wind-aware policy removes under each sensing (``quadwind_trl/evaluation/erro
     python recipes/error_budget.py --sweep vertical --quick    # smoke: small subset, short flights
 
 The vehicle is the current default with the sensing preset ``--sensors`` (default ``rtk``);
-``--sensors policy`` flies the policy's own saved vehicle instead (the shipped policies: the
-``legacy_walk`` calibration, ``results/legacy/``). ``--pd-only`` skips the policy flights. Uses the
+``--sensors policy`` flies the policy's own saved vehicle instead (for a policy trained on an
+earlier calibration, e.g. ``legacy_walk``: the first calibration's budgets in ``results/legacy/``). ``--pd-only`` skips the policy flights. Uses the
 shipped policy and estimator of the sweep's regime unless ``--policy``/``--estimator`` are given.
 Writes ``results/error_budget_<sweep>[_<preset>].json`` (``--quick``: under ``runs/quick/``);
 the stationary navigation error of the regime is the ``navigation``/``full`` cell's nav error.

@@ -5,8 +5,9 @@
     python recipes/pd_baseline.py --compile                # the same, compiled: ~7 min instead of ~45
     python recipes/pd_baseline.py --sensors sbas --out results/pd_baseline_sbas.json
 
-``--sensors`` changes only the sensing; ``results/legacy/`` (the earlier vehicle: static rotor
-thrust, locally scaled turbulence) re-flies at the commit its manifest names.
+``--sensors`` changes only the sensing. ``results/legacy/`` holds the first calibration's tables
+(static rotor thrust, locally scaled turbulence, walking biases; docs/simulator.md); they re-fly at
+the commit their manifests name.
 
 Writes ``results/pd_baseline.json`` (per-group statistics of the tracking RMSE and of the
 navigation error, with the command and config); the report (``recipes/report.py``) puts them

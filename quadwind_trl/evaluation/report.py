@@ -318,8 +318,6 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
     lines.append("(`quadwind_trl/evaluation/error_budget.py`). *nav error* is the RMSE of the position the PD flies on")
     lines.append("against the true one, on the scored steps: error the vehicle cannot see and no controller can remove.")
     lines.append("*headroom* = 1 - nav error / PD RMSE: about the largest xy improvement any controller could reach.")
-    lines.append("The shipped policies' own vehicle (`legacy_walk` sensing, before bounded biases) has its budgets in")
-    lines.append("`results/legacy/`; the reading of the RL results below refers to those.")
     lines.append("")
     for key, b in budgets.items():
         lines.append(f"**{b.get('sweep', key)}, sensing preset `{b.get('sensors', 'policy')}`** (`results/{key}.json`; {b['episodes']} episodes; mean RMSE in m; "
@@ -448,10 +446,10 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
     times = results_dir / "pipeline_times.json"
     if times.exists():
         parts.append(pipeline_section(json.loads(times.read_text())))
-    # the current vehicle's budgets, then the shipped policies' own (legacy_walk) ones
+    # the current vehicle's only: the earlier calibration's (results/legacy/) are the evidence of
+    # its history in docs/simulator.md, not results of the shipped policies
     budgets = {f"{path.parent.name}/{path.stem}": json.loads(path.read_text())
-               for pattern in ("error_budget_*.json", "legacy/error_budget_*.json")
-               for path in sorted(results_dir.glob(pattern))}
+               for path in sorted(results_dir.glob("error_budget_*.json"))}
     if budgets:
         parts.append(error_budget_section(budgets))
     for section in sorted(sections_dir.glob("*.md")):
