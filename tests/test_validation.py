@@ -120,10 +120,12 @@ def test_loading_the_wrong_kind_of_checkpoint_says_what_it_is(loader, path, word
 def test_checkpoints_carry_a_kind_and_old_ones_still_load(tmp_path):
     from quadwind_trl.estimator import untrained_estimator
 
-    # the shipped files predate "kind": their kind is inferred from their entries
-    assert "kind" not in torch.load(CHECKPOINTS / "policy_horizontal.pt", weights_only=True)
-    load_policy(CHECKPOINTS / "policy_horizontal.pt")
-    EstimatorBundle.load(CHECKPOINTS / "estimator_horizontal.pt")
+    # files saved before "kind" existed: their kind is inferred from their entries
+    for name, load in (("policy_horizontal", load_policy), ("estimator_horizontal", EstimatorBundle.load)):
+        payload = torch.load(CHECKPOINTS / f"{name}.pt", weights_only=True)
+        assert payload.pop("kind") in name
+        torch.save(payload, tmp_path / f"{name}.pt")
+        load(tmp_path / f"{name}.pt")
     bundle = untrained_estimator("horizontal")
     bundle.save(tmp_path / "est.pt")
     assert torch.load(tmp_path / "est.pt", weights_only=True)["kind"] == "estimator"
