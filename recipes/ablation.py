@@ -68,12 +68,15 @@ def main() -> None:
                         help="fly the simulator eagerly (default: as the policy trained, compiled unless it recorded otherwise)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    # once, before any file is written: rewriting a tracked results file would mark the tree
+    # dirty for every file after the first
+    commit = git_commit()
     if args.verify is not None:
         verify(args)
         return
     if args.resummarize is not None:
         for path in args.resummarize:
-            resummarize(path)
+            resummarize(path, commit)
         return
     results_dir = args.results or Path("runs/quick/results" if args.quick else "results")
     fig_dir = args.figures or Path("runs/quick/figures" if args.quick else "docs/figures")
@@ -104,7 +107,7 @@ def main() -> None:
                                   progress=True, config_override=override, compile_step=compile_step,
                                   blind_policy_path=blind_path if flies_blind else None)
         summary = summarize_ablation(name, episode_table(scenarios, results), controllers)
-        summary.update(command=command_line(sys.argv), git_commit=git_commit(), policy=repo_relative(policy_path),
+        summary.update(command=command_line(sys.argv), git_commit=commit, policy=repo_relative(policy_path),
                        blind_policy=repo_relative(blind_path) if flies_blind else None,
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
                        estimator_manifest=estimator.manifest.get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
@@ -116,7 +119,7 @@ def main() -> None:
               f"wins {aware['wins']}/{aware['n']}; figures: {', '.join(str(p) for p in paths)}")
 
 
-def resummarize(path: Path) -> None:
+def resummarize(path: Path, commit: str) -> None:
     recorded = json.loads(path.read_text())
     table = episode_table_from_json(recorded["episodes_table"])
     summary = summarize_ablation(recorded["sweep"], table, recorded["controllers"])
@@ -124,7 +127,7 @@ def resummarize(path: Path) -> None:
         sys.exit(f"{path}: the episode table does not survive the round trip; nothing written")
     added = [key for key in summary if key not in recorded]
     changed = [key for key in summary if key in recorded and summary[key] != recorded[key]]
-    write_json(path, recorded | summary | {"summarized_by": {"command": command_line(sys.argv), "git_commit": git_commit()}})
+    write_json(path, recorded | summary | {"summarized_by": {"command": command_line(sys.argv), "git_commit": commit}})
     print(f"{path} (flown at {recorded['git_commit']}): tables added: {', '.join(added) or 'none'}; "
           f"changed: {', '.join(changed) or 'none'}")
 
