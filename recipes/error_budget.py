@@ -8,7 +8,7 @@ the wind-aware policy removes under each sensing (``quadwind_trl/evaluation/erro
 
 The vehicle is the current default with the sensing preset ``--sensors`` (default ``rtk``);
 ``--sensors policy`` flies the policy's own saved vehicle instead (for a policy trained on an
-earlier calibration, e.g. ``legacy_walk``: the first calibration's budgets in ``results/legacy/``). ``--pd-only`` skips the policy flights. Uses the
+earlier calibration, e.g. ``legacy_walk``; the first calibration's budgets are in git history, ``cdd87a3:results/legacy/``). ``--pd-only`` skips the policy flights. Uses the
 shipped policy and estimator of the sweep's regime unless ``--policy``/``--estimator`` are given.
 Writes ``results/error_budget_<sweep>[_<preset>].json`` (``--quick``: under ``runs/quick/``);
 the stationary navigation error of the regime is the ``navigation``/``full`` cell's nav error.

@@ -5,9 +5,10 @@
     python recipes/pd_baseline.py --compile                # the same, compiled: ~7 min instead of ~45
     python recipes/pd_baseline.py --sensors sbas --out results/pd_baseline_sbas.json
 
-``--sensors`` changes only the sensing. ``results/legacy/`` holds the first calibration's tables
-(static rotor thrust, locally scaled turbulence, walking biases; docs/simulator.md); they re-fly at
-the commit their manifests name.
+``--sensors`` changes only the sensing. The first calibration's tables (static rotor thrust,
+locally scaled turbulence, walking biases; docs/simulator.md) are in git history only
+(``git show cdd87a3:results/legacy/pd_baseline.json``): made from an uncommitted tree, they cannot be
+re-flown bit for bit.
 
 Writes ``results/pd_baseline.json`` (per-group statistics of the tracking RMSE and of the
 navigation error, with the command and config); the report (``recipes/report.py``) puts them

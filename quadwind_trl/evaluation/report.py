@@ -446,8 +446,6 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
     times = results_dir / "pipeline_times.json"
     if times.exists():
         parts.append(pipeline_section(json.loads(times.read_text())))
-    # the current vehicle's only: the earlier calibration's (results/legacy/) are the evidence of
-    # its history in docs/simulator.md, not results of the shipped policies
     budgets = {path.stem: json.loads(path.read_text())
                for path in sorted(results_dir.glob("error_budget_*.json"))}
     if budgets:
