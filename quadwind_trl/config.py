@@ -152,7 +152,7 @@ class ResidualConfig:
     def validate(self) -> None:
         _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
         if min(self.slew_limit_per_step) <= 0:
-            raise ValueError("ResidualConfig.slew_limit_per_step must be positive")
+            raise ValueError(f"ResidualConfig.slew_limit_per_step={self.slew_limit_per_step!r}; allowed: every entry > 0")
 
 
 @dataclass(frozen=True)
@@ -446,7 +446,7 @@ class EnvConfig:
     trajectories: TrajectoryConfig = field(default_factory=TrajectoryConfig)
 
     def validate(self) -> "EnvConfig":
-        from .validation import validate_config  # the generic type / finiteness / range checks
+        from .validation import validate_config  # the generic checks; imported here so that the configs need no torch
 
         validate_config(self)
         for f in fields(self):
@@ -511,9 +511,10 @@ def config_from_dict(cls, data: dict):
         data = dict(data, residual=residual, timing=dict(data.get("timing", {}),
                                                           hold_control_steps=residual.pop("hold_control_steps")))
     hints = typing.get_type_hints(cls)
-    unknown = set(data) - {f.name for f in fields(cls)}
+    names = [f.name for f in fields(cls)]
+    unknown = set(data) - set(names)
     if unknown:
-        raise KeyError(f"{cls.__name__} has no fields {sorted(unknown)}")
+        raise KeyError(f"{cls.__name__} has no fields {sorted(unknown)}; allowed: {names}")
     kwargs = {}
     for f in fields(cls):
         if f.name not in data:
@@ -542,5 +543,6 @@ def _legacy_sensors(data: dict) -> SensorConfig:
     for name, ch in legacy.items():
         saved = data[name]
         if (saved["noise_std"], saved["bias_walk_std_per_sqrt_s"]) != (ch.noise_std, ch.bias_drive_std_per_sqrt_s):
-            raise ValueError(f"saved SensorConfig.{name}={saved} is not the legacy_walk calibration; cannot map it")
+            raise ValueError(f"saved SensorConfig.{name}={saved} is not the legacy_walk calibration (noise_std="
+                             f"{ch.noise_std}, bias_walk_std_per_sqrt_s={ch.bias_drive_std_per_sqrt_s}); cannot map it")
     return replace(LEGACY_SENSORS, enabled=data.get("enabled", True))

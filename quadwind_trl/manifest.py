@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import json
 import os
+import platform
+import re
 import shlex
 import subprocess
+from functools import cache
 from pathlib import Path
 from typing import ClassVar
 
@@ -19,6 +22,58 @@ def git_commit() -> str | None:
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
         return None
+
+
+#: environment variables that change which kernels ATen, MKL or oneDNN run (and so the last bits)
+KERNEL_ENV = ("ATEN_CPU_CAPABILITY", "MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "OMP_NUM_THREADS")
+#: the parts of :func:`platform_info` that decide bitwise replay (docs/simulator.md, "Exact replay")
+PLATFORM_KEY = ("machine", "cpu", "aten_cpu_capability", "blas", "torch", "kernel_env", "torch_threads")
+
+
+def _cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+@cache
+def _blas() -> str:
+    """The BLAS torch was built with and its version, from ``torch.__config__.show()``."""
+    import torch
+
+    shown = torch.__config__.show()
+    name = re.search(r"BLAS_INFO=([^,\s]+)", shown)
+    version = re.search(r"Math Kernel Library Version ([^\s]+)", shown) or re.search(r"OpenBLAS ([^\s]+)", shown)
+    return " ".join(filter(None, (name and name.group(1), version and version.group(1)))) or "unknown"
+
+
+def platform_info() -> dict:
+    """What a bitwise replay depends on besides the code and the inputs: the processor, the kernel
+    path ATen dispatches to (``torch.backends.cpu.get_cpu_capability()``, which
+    ``ATEN_CPU_CAPABILITY`` can lower), the BLAS and its version, torch, the environment variables
+    that change kernel choice, and the thread count. Every manifest and results file records it;
+    :func:`same_platform` compares two."""
+    import torch
+
+    return {
+        "machine": platform.machine(),
+        "cpu": _cpu_model(),
+        "aten_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+        "blas": _blas(),
+        "torch": torch.__version__,
+        "kernel_env": {k: os.environ[k] for k in KERNEL_ENV if k in os.environ},
+        "torch_threads": torch.get_num_threads(),
+    }
+
+
+def same_platform(a: dict | None, b: dict | None) -> bool:
+    """Whether two :func:`platform_info` records name the same platform (so bitwise replay is the
+    promise between them); a record without one (made before platforms were recorded) never is."""
+    return a is not None and b is not None and all(a.get(k) == b.get(k) for k in PLATFORM_KEY)
 
 
 def save_atomic(obj, path: str | os.PathLike) -> None:
@@ -46,19 +101,44 @@ ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 
 
+def checkout_root(path: str | os.PathLike) -> Path | None:
+    """The nearest directory at or above ``path`` that is a checkout of this project (it holds
+    ``pyproject.toml`` and ``quadwind_trl/__init__.py``): this one (:data:`ROOT`) or another
+    worktree or clone of the same repository; None when there is none."""
+    path = Path(path)
+    for folder in (path, *path.parents):
+        if (folder / "pyproject.toml").is_file() and (folder / "quadwind_trl" / "__init__.py").is_file():
+            return folder
+    return None
+
+
 def repo_relative(path: str | os.PathLike) -> str:
-    """``path`` relative to the repository root when it lies inside it (what a manifest records:
-    the machine's own directories mean nothing on another), else unchanged."""
+    """``path`` relative to the repository (what a manifest records: the machine's own directories
+    mean nothing on another): relative to this checkout's root when it lies inside it, else to
+    the checkout of this project it lies in (a run in another worktree of the same repository,
+    with the package imported from this one, names that worktree's files); a path in no
+    checkout, or an already relative one, is unchanged."""
     p = Path(path)
-    try:
-        return str(p.resolve().relative_to(ROOT)) if p.is_absolute() else str(p)
-    except ValueError:
+    if not p.is_absolute():
         return str(p)
+    resolved = p.resolve()
+    for root in (ROOT, checkout_root(resolved)):
+        if root is not None and resolved.is_relative_to(root):
+            return str(resolved.relative_to(root))
+    return str(p)
 
 
 def command_line(argv: list[str]) -> str:
-    """The command a manifest records: ``python`` and ``argv`` with repository paths relative."""
-    return shlex.join(["python"] + [repo_relative(a) if os.path.isabs(a) else a for a in argv])
+    """The command a manifest records: ``python`` and ``argv`` with repository paths relative
+    (``PATH`` and ``--option=PATH`` alike)."""
+
+    def relative(arg: str) -> str:
+        if os.path.isabs(arg):
+            return repo_relative(arg)
+        option, eq, value = arg.partition("=")
+        return f"{option}={repo_relative(value)}" if eq and option.startswith("-") and os.path.isabs(value) else arg
+
+    return shlex.join(["python"] + [relative(a) for a in argv])
 
 
 class CheckpointParts:

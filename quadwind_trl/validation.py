@@ -4,9 +4,13 @@ actions and checkpoint files.
 Every check fails early with a ``ValueError`` (``TypeError`` for a wrong Python type) whose
 message names the field, the value and what is allowed. The boundaries call it: scenarios when
 they are made (:func:`~quadwind_trl.envs.scenarios.make_scenarios`) and when an episode batch is
-reset or flown, configs in ``EnvConfig.validate``, the action shape in ``QuadWindEnv._step`` (a
-Python-level shape comparison: no host sync in the step's hot path), and the kind of a
-checkpoint in the loaders.
+reset or flown (:func:`~quadwind_trl.envs.scenarios.validate_scenarios` hands :func:`check_rows`
+the scenario schema with the registered trajectories' ids), configs in ``EnvConfig.validate``,
+the action shape in ``QuadWindEnv._step`` (a Python-level shape comparison: no host sync in the
+step's hot path), and the kind of a checkpoint in the loaders.
+
+This module sits below everything it checks: it imports nothing from the package, so what it
+checks against that lives elsewhere (the trajectory registry) is handed in by the caller.
 """
 from __future__ import annotations
 
@@ -57,26 +61,6 @@ SCENARIO_RANGES: dict[str, Range] = {
 }
 
 
-def _trajectory_names() -> tuple[str, ...]:
-    from .envs.trajectories import trajectory_names
-
-    return trajectory_names()
-
-
-def _stability_names() -> tuple[str, ...]:
-    from .envs.scenarios import STABILITY_NAMES
-
-    return STABILITY_NAMES
-
-
-def trajectory_id(name: str) -> int:
-    """The id of a registered trajectory, or a ``ValueError`` listing the registered names."""
-    names = _trajectory_names()
-    if name not in names:
-        raise ValueError(f"traj_id={name!r} is not a registered trajectory; registered: {', '.join(names)}")
-    return names.index(name)
-
-
 def as_field_tensor(name: str, value, dtype: torch.dtype, batch: int, device) -> torch.Tensor:
     """``value`` (a scalar, or one value per episode) as a ``[batch]`` tensor of ``dtype``."""
     if isinstance(value, str):
@@ -105,51 +89,35 @@ def _show(t: torch.Tensor) -> str:
     return values[0] if t.ndim == 0 else "[" + ", ".join(values) + "]"
 
 
-def validate_scenarios(scenarios: TensorDictBase) -> TensorDictBase:
-    """Check every field of a scenario batch (type, shape, finiteness, range); returns it.
+def check_rows(what: str, rows: TensorDictBase, schema: dict[str, tuple[torch.dtype, Range]]) -> TensorDictBase:
+    """Check the fields of a batch ``[N]`` against ``schema`` (field -> dtype, allowed range):
+    the dtype's kind (integer or floating), finiteness and range of every row; returns ``rows``.
 
     One host sync per call: it runs where episodes are made or reset with a given spec, never
     inside a step."""
-    from .envs.scenarios import SCENARIO_FIELDS
-
-    if scenarios.batch_dims != 1:
-        raise ValueError(f"scenario: expected a batch [N], got batch size {list(scenarios.batch_size)}")
-    missing = [k for k in SCENARIO_FIELDS if k not in scenarios.keys()]
-    if missing:
-        raise ValueError(f"scenario is missing fields {missing}; make it with make_scenarios(...)")
+    if rows.batch_dims != 1:
+        raise ValueError(f"{what}: expected a batch [N], got batch size {list(rows.batch_size)}")
     checks = []
-    for name, (dtype, _) in SCENARIO_FIELDS.items():
-        value = scenarios.get(name)
+    for name, (dtype, allowed) in schema.items():
+        value = rows.get(name)
         if value.dtype.is_floating_point != dtype.is_floating_point:
-            raise TypeError(f"scenario field {name}: dtype {value.dtype}, expected {dtype}")
-        checks.append(_bad_mask(name, value))
+            raise TypeError(f"{what} field {name}: dtype {value.dtype}, expected {dtype}")
+        checks.append(_bad_mask(value, allowed))
     # one sync for the whole batch: which fields have a bad row
     bad = torch.stack([m.any() for m in checks]).tolist()
-    for (name, _), is_bad, mask in zip(SCENARIO_FIELDS.items(), bad, checks):
+    for (name, (_, allowed)), is_bad, mask in zip(schema.items(), bad, checks):
         if is_bad:
-            value = scenarios.get(name)
+            value = rows.get(name)
             row = int(mask.nonzero()[0, 0])
-            raise ValueError(f"scenario field {name}={_show(value[row])} (row {row}) is not allowed; allowed: {_allowed(name)}")
-    return scenarios
+            finite = "finite values in " if value.is_floating_point() else ""
+            raise ValueError(f"{what} field {name}={_show(value[row])} (row {row}) is not allowed; "
+                             f"allowed: {finite}{allowed.describe()}")
+    return rows
 
 
-def _bad_mask(name: str, value: torch.Tensor) -> torch.Tensor:
-    if name == "traj_id":
-        return (value < 0) | (value >= len(_trajectory_names()))
-    if name == "stability":
-        return (value < 0) | (value >= len(_stability_names()))
-    r = SCENARIO_RANGES[name]
+def _bad_mask(value: torch.Tensor, r: Range) -> torch.Tensor:
     bad = (value < r.low) | (value > r.high)
     return bad | ~torch.isfinite(value) if value.is_floating_point() else bad
-
-
-def _allowed(name: str) -> str:
-    if name == "traj_id":
-        names = _trajectory_names()
-        return "ids 0-{} or names: {}".format(len(names) - 1, ", ".join(f"{i} {n}" for i, n in enumerate(names)))
-    if name == "stability":
-        return "values: " + ", ".join(f"{i} {n}" for i, n in enumerate(_stability_names()))
-    return "finite values in " + SCENARIO_RANGES[name].describe()
 
 
 # --- configs -------------------------------------------------------------------------------------
@@ -179,6 +147,11 @@ CONFIG_RANGES: dict[str, Range] = {
 # (a duration, a rate, a mass, an area, a spread, a size) and is never negative
 MAGNITUDE_UNITS = ("_s", "_hz", "_kg", "_m2", "_kg_m2", "_kg_m3")
 MAGNITUDE_WORDS = ("std", "duration", "radius", "length", "legs", "spacing", "speed")
+
+
+def _is_number(value) -> bool:
+    """A Python ``int`` or ``float``, not a ``bool`` (configs and designs go into JSON manifests)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def _is_magnitude(name: str) -> bool:
@@ -224,7 +197,7 @@ def _check_value(label: str, key: str, value, hint, name: str) -> None:
     if hint in (int, float) or (origin is typing.Union and set(get_args(hint)) <= {int, float, type(None)}):
         if value is None and type(None) in get_args(hint):
             return
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
+        if not _is_number(value):
             raise TypeError(f"{label}={value!r}: expected a number")
         if hint is int and not isinstance(value, int):
             raise TypeError(f"{label}={value!r}: expected an integer")
@@ -312,11 +285,15 @@ def validate_ranges(ranges) -> None:
             continue
         if not (isinstance(bounds, (tuple, list)) and len(bounds) == 2):
             raise ValueError(f"{owner}.{name}={bounds!r}: expected a (low, high) pair")
+        if not all(map(_is_number, bounds)):
+            raise TypeError(f"{owner}.{name}={bounds!r}: expected a (low, high) pair of numbers")
         low, high = bounds
         r = SCENARIO_RANGES[field]
         if not (math.isfinite(low) and math.isfinite(high) and r.low <= low <= high <= r.high):
             raise ValueError(f"{owner}.{name}={bounds!r}: expected low <= high within {r.describe()}")
     for name in ("top_altitude_m", "wind_ceiling_m_s", "reference_height_m"):
         value = getattr(ranges, name)
+        if not _is_number(value):
+            raise TypeError(f"{owner}.{name}={value!r}: expected a number")
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"{owner}.{name}={value!r} must be finite and > 0")

@@ -16,9 +16,12 @@ policy the ``trained_blind`` controller is left out, and said so. Writes ``resul
 docs/results.md. ``--batch B`` flies B episodes at a time (default: the whole sweep in one batch,
 the fastest), recorded in the file. ``--verify FILE`` writes nothing: it re-flies batches
 ``--chunks A:B`` of a results file exactly as the file records them (sweep, controllers, policy,
-estimator, flights, simulator, batch layout) and reports, per controller, how many per-episode
-values agree to the bit (exit status 1 if any differs). A batch is the unit because only the
-recorded layout replays bit for bit (``evaluation.replay.verify_ablation``). ``--resummarize
+estimator, flights, simulator, batch layout) and reports, per controller, against the
+reproducibility contract (docs/simulator.md, "Exact replay"): "bitwise (same platform)" on the
+platform the file records, else the distribution of the deviations and whether they stay within
+the cross-platform tolerance (``--quick`` flights) or agree statistically (full flights); exit
+status 1 where the contract does not hold. A batch is the unit because only the recorded layout
+replays bit for bit (``evaluation.replay.verify_ablation``). ``--resummarize
 FILE...`` flies nothing: it recomputes a file's tables from its own per-episode table with the
 current summary code (kept: the flight's command and commit; added: ``summarized_by``) and says
 which tables it added or changed.
@@ -36,9 +39,9 @@ import torch
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import (CONTROLLERS, episode_table, episode_table_from_json, fly_controllers,
                                               policy_compile_step, summarize_ablation)
-from quadwind_trl.evaluation.replay import verify_ablation
+from quadwind_trl.evaluation.replay import replay_verdict, verify_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
-from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
+from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.rl.policy import load_policy
@@ -107,7 +110,7 @@ def main() -> None:
                                   progress=True, config_override=override, compile_step=compile_step,
                                   blind_policy_path=blind_path if flies_blind else None)
         summary = summarize_ablation(name, episode_table(scenarios, results), controllers)
-        summary.update(command=command_line(sys.argv), git_commit=commit, policy=repo_relative(policy_path),
+        summary.update(command=command_line(sys.argv), git_commit=commit, platform=platform_info(), policy=repo_relative(policy_path),
                        blind_policy=repo_relative(blind_path) if flies_blind else None,
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
                        estimator_manifest=estimator.manifest.get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
@@ -133,19 +136,26 @@ def resummarize(path: Path, commit: str) -> None:
 
 
 def verify(args: argparse.Namespace) -> None:
+    """Re-fly a results file's batches and report against the contract (docs/simulator.md, "Exact
+    replay"): bitwise on the platform that made it, else the deviation distribution and whether
+    the re-flight agrees statistically; exits 1 where the contract does not hold."""
     results = json.loads(args.verify.read_text())
     chunks = range(*(int(x) for x in args.chunks.split(":"))) if args.chunks else None
     t0 = time.perf_counter()
     agreement, episodes = verify_ablation(results, chunks)
     batch = results.get("batch", results["episodes"])
+    recorded = results.get("platform")
     print(f"{args.verify} ({results['sweep']}, recorded at {results['git_commit']}), batches of {batch}: "
           f"{'all' if chunks is None else f'{chunks.start}:{chunks.stop}'} ({episodes} episodes), "
-          f"{'compiled' if results.get('compile_step') else 'eager'}, {time.perf_counter() - t0:.0f} s:")
-    for name, (same, total) in agreement.items():
-        print(f"  {name}: {same}/{total} values bit-identical")
-    if any(same != total for same, total in agreement.values()):
+          f"{'compiled' if results.get('compile_step') else 'eager'}, {time.perf_counter() - t0:.0f} s")
+    print(f"  recorded on: {recorded or 'not recorded'}\n  flown on:    {platform_info()}")
+    holds = True
+    for name, agreed in agreement.items():
+        ok, verdict = replay_verdict(agreed, recorded, long_flights=not results.get("quick", False))
+        holds &= ok
+        print(f"  {name}: {verdict}")
+    if not holds:
         sys.exit(1)
-
 
 if __name__ == "__main__":
     main()

@@ -25,7 +25,7 @@ import torch
 from quadwind_trl.config import SENSING, SENSOR_PRESETS, EnvConfig, with_sensor_preset
 from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle, summary_lines
 from quadwind_trl.evaluation.tracking import sweep_setup
-from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
+from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
@@ -56,7 +56,7 @@ def main() -> None:
     start = time.perf_counter()
     budget = error_budget(regime, scenarios, policy, estimator, tuple(args.sensing), override, progress=True,
                           winds=tuple(args.winds), with_policy=not args.pd_only)
-    budget.update(sweep=args.sweep, sensors=args.sensors, command=command_line(sys.argv), git_commit=git_commit(),
+    budget.update(sweep=args.sweep, sensors=args.sensors, command=command_line(sys.argv), git_commit=git_commit(), platform=platform_info(),
                   policy=repo_relative(policy), wall_time_s=time.perf_counter() - start)
     suffix = "" if args.sensors == "rtk" else f"_{args.sensors}"
     out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}{suffix}.json"

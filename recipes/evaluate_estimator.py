@@ -40,7 +40,7 @@ from quadwind_trl.evaluation.estimation import TAU_SWEEP_S
 from quadwind_trl.evaluation.estimation_figures import estimation_figures
 from quadwind_trl.evaluation.estimation_run import run_estimation
 from quadwind_trl.evaluation.estimation_tables import estimation_markdown, replace_section
-from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, repo_relative
+from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, repo_relative
 
 
 def main() -> None:
@@ -82,7 +82,7 @@ def main() -> None:
     if trained_on and trained_on != ed.info["manifest_sha256"]:
         print(f"WARNING: {ckpt} was trained on another dataset ({bundle.manifest['dataset'].get('path')}); its test split may overlap training", flush=True)
     results: dict = {"regime": regime, "checkpoint": repo_relative(ckpt), "data": ed.info, "stride": args.stride,
-                     "command": command_line(sys.argv), "git_commit": git_commit(), "paper_tau_s": DEFAULT_TAU_S}  # fmt: skip
+                     "command": command_line(sys.argv), "git_commit": git_commit(), "platform": platform_info(), "paper_tau_s": DEFAULT_TAU_S}  # fmt: skip
     unseen = None
     if args.unseen_data:
         try:
@@ -92,7 +92,7 @@ def main() -> None:
     run = run_estimation(bundle, ed, results, unseen=unseen, stride=args.stride, batch=args.batch, taus=args.taus,
                          paper_tau_s=DEFAULT_TAU_S)
     figs, case = estimation_figures(run, fig_dir)
-    results["figures"] = {k: str(v) for k, v in figs.items()}
+    results["figures"] = {k: repo_relative(v) for k, v in figs.items()}
     results["example_case"] = case
     md = estimation_markdown(run, figs, ckpt, bundle.manifest, args.link_base, json_path)
     Path(args.md).parent.mkdir(parents=True, exist_ok=True)

@@ -26,7 +26,7 @@ import torch
 from quadwind_trl.config import SENSOR_PRESETS, EnvConfig, config_to_dict, with_sensor_preset
 from quadwind_trl.envs import QuadWindEnv
 from quadwind_trl.evaluation.tracking import fly_sweep, sweep_setup, tracking_tables
-from quadwind_trl.manifest import command_line, git_commit, write_json
+from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
 from quadwind_trl.quick import SWEEP_QUICK
 from quadwind_trl.regimes import SWEEPS
 
@@ -46,7 +46,7 @@ def main() -> None:
     if args.quick:
         cfg = SWEEP_QUICK.config(cfg)
         print(f"--quick: {SWEEP_QUICK.describe()}; one seed and intensity per sweep")
-    report = {"command": command_line(sys.argv), "git_commit": git_commit(), "sensors": args.sensors,
+    report = {"command": command_line(sys.argv), "git_commit": git_commit(), "platform": platform_info(), "sensors": args.sensors,
               "config": config_to_dict(cfg), "sweeps": {}}
     for name in args.sweeps:
         scenarios, _ = sweep_setup(SWEEPS[name], args.quick)  # the flights' change is in cfg already

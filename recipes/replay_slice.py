@@ -6,8 +6,10 @@
 
 Flown: PD on the default vehicle (``EnvConfig()``), and the shipped policy of the sweep's regime
 wind-blind and wind-aware (in the env its checkpoint records), all on the same episodes with one
-batch of the slice's size. Values are stored as ``float.hex`` strings, so a comparison is exact:
-a refactor that claims "no physics change" must reproduce every one of them.
+batch of the slice's size. Values are stored as ``float.hex`` strings, so a comparison is exact,
+with the platform that flew them: on that platform a refactor that claims "no physics change"
+must reproduce every one of them; on another, ``--compare`` reports the deviations against the
+cross-platform tolerance (docs/simulator.md, "Exact replay").
 """
 from __future__ import annotations
 
@@ -19,8 +21,8 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.evaluation.replay import mismatches, replay
-from quadwind_trl.manifest import command_line, git_commit, write_json
+from quadwind_trl.evaluation.replay import compare_records, replay, replay_verdict
+from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
 from quadwind_trl.regimes import SWEEPS
 
 def main() -> None:
@@ -31,27 +33,32 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="write the record here")
     parser.add_argument("--compare", type=Path, default=None, help="a record to check bit for bit")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--pattern-s", type=float, default=None,
+                        help="shorten the fixed-altitude patterns to this many seconds (a cheaper check)")
+    parser.add_argument("--eager", action="store_true",
+                        help="fly the policies on the eager simulator step (default: the step each trained on)")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     start, stop = (int(x) for x in args.episodes.split(":"))
     if args.compare is not None:  # fly exactly what the record flew
         ref = json.loads(args.compare.read_text())
         args.sweep, args.quick, (start, stop) = ref["sweep"], ref["quick"], ref["episodes"]
+        args.eager, args.pattern_s = ref.get("eager", False), ref.get("pattern_s")
     t0 = time.perf_counter()
-    flown = replay(args.sweep, slice(start, stop), args.quick)
-    record = {"sweep": args.sweep, "episodes": [start, stop], "quick": args.quick, "results": flown,
-              "command": command_line(sys.argv), "git_commit": git_commit(), "wall_time_s": time.perf_counter() - t0}
+    flown = replay(args.sweep, slice(start, stop), args.quick, compile_step=False if args.eager else None,
+                   pattern_s=args.pattern_s)
+    record = {"sweep": args.sweep, "episodes": [start, stop], "quick": args.quick, "eager": args.eager,
+              "pattern_s": args.pattern_s, "results": flown,
+              "command": command_line(sys.argv), "git_commit": git_commit(), "platform": platform_info(), "wall_time_s": time.perf_counter() - t0}
     if args.out is not None:
         write_json(args.out, record)
         print(f"wrote {args.out}")
     if args.compare is not None:
-        differ, total = mismatches(ref["results"], flown)
-        print(f"{args.sweep} episodes {start}:{stop}: {total - len(differ)}/{total} values bit-identical to "
-              f"{args.compare} (recorded at {ref['git_commit']})")
-        if differ:
-            print("differ:", differ[:10])
+        holds, verdict = replay_verdict(compare_records(ref["results"], flown), ref.get("platform"),
+                                        long_flights=not ref["quick"])
+        print(f"{args.sweep} episodes {start}:{stop} against {args.compare} (recorded at {ref['git_commit']}): {verdict}")
+        if not holds:
             sys.exit(1)
-
 
 if __name__ == "__main__":
     main()

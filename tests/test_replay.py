@@ -1,23 +1,76 @@
-"""Exact replay across code changes: short flights of the first sweep episodes reproduce, bit for
-bit, the per-episode RMSEs recorded in ``tests/data/replay_*.json`` (PD on the default vehicle, the
-shipped policies wind-blind and wind-aware). A refactor must leave them unchanged; a physics or
-checkpoint change re-records them with the command each file names (and says so in its commit)."""
+"""Exact replay as docs/simulator.md ("Exact replay") promises it, and nothing more:
+
+* one machine, one run: the same episodes flown twice give the same bits;
+* a committed record (``tests/data/replay_*.json``, PD on the default vehicle and the shipped
+  policies wind-blind and wind-aware) re-flies bit for bit on the platform that recorded it, and
+  within ``CROSS_PLATFORM_RTOL`` on any other (another processor, kernel path, BLAS or torch);
+* another kernel path on this machine (a lower ``ATEN_CPU_CAPABILITY`` and MKL instruction set in
+  a subprocess: what another processor runs) stays within that tolerance, so an assumption that
+  holds on one processor only fails here, in CI, not on a user's machine.
+
+A refactor must keep the records; a physics or checkpoint change re-records them with the command
+each file names (and says so in its commit)."""
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
+import torch
 
-from quadwind_trl.evaluation.replay import mismatches, replay
+from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, compare_records, replay, replay_verdict
+from quadwind_trl.manifest import platform_info, same_platform
 
 DATA = Path(__file__).parent / "data"
+ROOT = Path(__file__).resolve().parent.parent
 
 
 # one mechanism for both sweeps; the vertical record (87 s, the longer patterns) runs with -m slow
 @pytest.mark.parametrize("sweep", ["horizontal", pytest.param("vertical", marks=pytest.mark.slow)])
-def test_sweep_slice_replays_bit_for_bit(sweep):
+def test_sweep_slice_replays_its_record(sweep):
     record = json.loads((DATA / f"replay_{sweep}.json").read_text())
     start, stop = record["episodes"]
     flown = replay(record["sweep"], slice(start, stop), record["quick"])
-    differ, total = mismatches(record["results"], flown)
-    assert total == 3 * 3 * (stop - start)
-    assert not differ, f"{len(differ)}/{total} values differ from the record made at {record['git_commit']}: {differ[:5]}"
+    agreement = compare_records(record["results"], flown)
+    assert agreement.total == 3 * 2 * (stop - start)
+    holds, verdict = replay_verdict(agreement, record.get("platform"))
+    assert holds, f"record made at {record['git_commit']} on {record.get('platform')}: {verdict}"
+
+
+# two quick episodes, 3 s of pattern, on the eager simulator step: cheap, and every controller
+SLICE = ("--quick", "--eager", "--episodes", "0:2", "--pattern-s", "3")
+
+
+def _eager_slice() -> dict:
+    return replay("horizontal", slice(0, 2), quick=True, compile_step=False, pattern_s=3.0)
+
+
+@pytest.fixture(scope="module")
+def eager_slice() -> dict:
+    return _eager_slice()
+
+
+def test_the_same_flights_twice_in_one_run_are_bit_identical(eager_slice):
+    agreement = compare_records(eager_slice, _eager_slice())
+    assert agreement.bitwise, agreement.describe()
+
+
+def _lower_kernel_path() -> str | None:
+    """An ATen CPU capability below this machine's (``default``: scalar kernels, runs anywhere)."""
+    return None if torch.backends.cpu.get_cpu_capability() == "DEFAULT" else "default"
+
+
+@pytest.mark.skipif(_lower_kernel_path() is None, reason="this machine runs ATen's scalar kernels already")
+def test_another_kernel_path_stays_within_the_cross_platform_tolerance(tmp_path, eager_slice):
+    out = tmp_path / "other_path.json"
+    env = {**os.environ, "ATEN_CPU_CAPABILITY": _lower_kernel_path(), "MKL_ENABLE_INSTRUCTIONS": "SSE4_2",
+           "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    run = subprocess.run([sys.executable, str(ROOT / "recipes" / "replay_slice.py"), *SLICE, "--out", str(out)],
+                         cwd=ROOT, env=env, capture_output=True, text=True)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    other = json.loads(out.read_text())
+    assert not same_platform(other["platform"], platform_info())  # the contract's other-platform branch
+    agreement = compare_records(other["results"], eager_slice)
+    holds, verdict = replay_verdict(agreement, other["platform"])
+    assert holds, f"{verdict} (tolerance {CROSS_PLATFORM_RTOL:.0e}; docs/simulator.md, 'Exact replay')"

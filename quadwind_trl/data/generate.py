@@ -42,7 +42,7 @@ from typing import Callable, Literal
 import torch
 from tensordict import TensorDict
 
-from ..manifest import git_commit, write_json
+from ..manifest import git_commit, platform_info, write_json
 from ..config import EnvConfig, TrajectoryConfig, config_to_dict
 from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
@@ -308,6 +308,7 @@ def _generate(out: Path, tmp: Path, spec: GenerationSpec, max_batch: int, device
         provenance = {
             "command": command,
             "git_commit": git_commit(),
+            "platform": platform_info(),
             "wall_time_s": round(time.perf_counter() - t0, 2),
             "env_batch": batch,
             "compile_step": compile_step,

@@ -23,6 +23,7 @@ from .trajectories import (
     LevelPattern,
     Pattern,
     register_trajectory,
+    trajectory_id,
     trajectory_ids,
     trajectory_name,
     trajectory_names,
@@ -45,5 +46,6 @@ __all__ = [
     "register_trajectory",
     "trajectory_names",
     "trajectory_name",
+    "trajectory_id",
     "trajectory_ids",
 ]

@@ -11,8 +11,8 @@ from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
 from ..keys import MEAS_KEY
-from ..validation import check_action, validate_scenarios
-from .scenarios import RegimeRanges, make_scenarios, random_scenarios
+from ..validation import check_action
+from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
@@ -71,6 +71,11 @@ def _vec(n: int, dim: int, device, dtype=torch.float32) -> Unbounded:
     return Unbounded(shape=(n, dim), device=device, dtype=dtype)
 
 
+def _leaf_keys(td: TensorDict) -> list[NestedKey]:
+    """The leaf keys of ``td``, sorted: a nested key by its path, beside the plain ones."""
+    return sorted(td.keys(True, True), key=lambda k: (k,) if isinstance(k, str) else k)
+
+
 class QuadWindEnv(EnvBase):
     """A batch of quadrotors flying reference trajectories through wind and turbulence.
 
@@ -125,8 +130,8 @@ class QuadWindEnv(EnvBase):
         first_row: int = 0,
     ):
         batch_size = torch.Size(batch_size)
-        if len(batch_size) != 1:
-            raise ValueError(f"QuadWindEnv takes a 1-D batch_size [N], got {list(batch_size)}")
+        if len(batch_size) != 1 or batch_size[0] < 1:
+            raise ValueError(f"QuadWindEnv.batch_size={list(batch_size)}; allowed: [N] with N >= 1 (one row per sub-env)")
         if first_row < 0:
             raise ValueError(f"QuadWindEnv.first_row={first_row}; allowed: >= 0")
         # this env's rows are rows first_row, first_row + 1, ... of a larger batch (one worker of
@@ -257,7 +262,7 @@ class QuadWindEnv(EnvBase):
             if value is not None:
                 return value.clone()
         raise KeyError(f"{key!r} is neither a simulator state nor a params entry; state: "
-                       f"{sorted(self.state.keys(True, True))}, params: {sorted(self.params.keys(True, True))}")
+                       f"{_leaf_keys(self.state)}, params: {_leaf_keys(self.params)}")
 
     def scenario(self) -> TensorDict:
         """The scenarios of the episodes now running (a copy)."""

@@ -18,8 +18,8 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm.auto import tqdm
 
 from ..keys import MEAS_KEY
-from ..validation import validate_scenarios
 from .quad_env import QuadWindEnv
+from .scenarios import validate_scenarios
 
 NestedKey = str | tuple[str, ...]
 Policy = Callable[[TensorDictBase], TensorDictBase]

@@ -10,13 +10,13 @@ import operator
 from dataclasses import dataclass
 
 import torch
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 
-from ..validation import as_field_tensor, trajectory_id, validate_ranges, validate_scenarios
+from ..validation import SCENARIO_RANGES, Range, as_field_tensor, check_rows, validate_ranges
 from .counter_rng import hash_bits, hash_uniform
-from .trajectories import HORIZONTAL, trajectory_ids
+from .trajectories import HORIZONTAL, trajectory_id, trajectory_ids, trajectory_names
 
-# the atmospheric stability regimes a scenario's ``stability`` field indexes (validation names them;
+# the atmospheric stability regimes a scenario's ``stability`` field indexes (the checks name them;
 # TurbulenceConfig.stability_ratios holds one pair per regime, in this order)
 STABILITY_NAMES = ("neutral", "stable", "convective")
 
@@ -63,6 +63,22 @@ def make_scenarios(batch: int, device: torch.device | str | None = None, *, chec
            for name, (dtype, default) in SCENARIO_FIELDS.items()}
     td = TensorDict(out, batch_size=[batch], device=device)
     return validate_scenarios(td) if check else td
+
+
+def validate_scenarios(scenarios: TensorDictBase) -> TensorDictBase:
+    """Check every field of a scenario batch (type, shape, finiteness, range); returns it. The
+    ids a ``traj_id`` may take are those registered now (user patterns included)."""
+    missing = [k for k in SCENARIO_FIELDS if k not in scenarios.keys()]
+    if missing:
+        raise ValueError(f"scenario is missing fields {missing}; make it with make_scenarios(...)")
+    allowed = {**SCENARIO_RANGES, "traj_id": _id_range("registered trajectories", trajectory_names()),
+               "stability": _id_range("stability regimes", STABILITY_NAMES)}
+    return check_rows("scenario", scenarios, {name: (dtype, allowed[name]) for name, (dtype, _) in SCENARIO_FIELDS.items()})
+
+
+def _id_range(what: str, names: tuple[str, ...]) -> Range:
+    """The ids of ``names`` (an id is a position), each named in the message."""
+    return Range(0, len(names) - 1, f"{what}: " + ", ".join(f"{i} {n}" for i, n in enumerate(names)), integer=True)
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,7 @@ from torch import Tensor
 
 from ..data.generate import load_dataset
 from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
-from ..manifest import CheckpointParts, git_commit, repo_relative, save_atomic
+from ..manifest import CheckpointParts, git_commit, platform_info, repo_relative, save_atomic
 from .checkpoint import EstimatorBundle
 from .features import make_extractor
 from .loss import EstimatorLoss, EstimatorLossConfig
@@ -521,11 +521,12 @@ def train_estimator(
         "model": asdict(trainer.mcfg),
         "parameters": trainer.n_params,
         "git_commit": git_commit(),
+        "platform": platform_info(),
         "dataset": ed.info,
         "torch_version": torch.__version__,
         "torch_threads": torch.get_num_threads(),
         "exp_name": exp_name,
-        "log_dir": str(Path(log_dir) / exp_name),
+        "log_dir": repo_relative(Path(log_dir) / exp_name),
     }
     if run.initial_val is None:  # the untrained model: the reference that training must beat
         run.initial_val = headline(trainer.validate())

@@ -12,8 +12,7 @@ import torch  # noqa: E402
 from tensordict import TensorDictBase  # noqa: E402
 
 from ..envs.runner import FlightResults  # noqa: E402
-from ..envs.trajectories import trajectory_name  # noqa: E402
-from ..validation import trajectory_id  # noqa: E402
+from ..envs.trajectories import trajectory_id, trajectory_name  # noqa: E402
 
 COLORS = {"pd": "tab:red", "blind": "tab:orange", "aware": "tab:blue", "oracle": "tab:green", "trained_blind": "tab:purple"}
 LABELS = {"pd": "PD baseline", "blind": "wind-blind RL", "aware": "wind-aware RL", "oracle": "true-wind oracle",

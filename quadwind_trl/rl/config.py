@@ -74,15 +74,15 @@ class PPOConfig:
         return self.iterations * self.frames_per_batch
 
     def validate(self) -> "PPOConfig":
+        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"PPOConfig.{name}={getattr(self, name)} must be >= 1")
         if self.frames_per_batch % self.minibatch:
             raise ValueError(
                 f"PPOConfig: num_envs * steps_per_env = {self.frames_per_batch} must be a multiple of minibatch={self.minibatch}"
             )
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"PPOConfig.activation={self.activation!r}; allowed: {sorted(ACTIVATIONS)}")
-        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"PPOConfig.{name}={getattr(self, name)} must be >= 1")
         if not 0 < self.init_scale:
             raise ValueError(f"PPOConfig.init_scale={self.init_scale} must be > 0")
         return self
@@ -103,7 +103,8 @@ class Curriculum:
 
     def __post_init__(self):
         if len(self.stages) != len(self.starts) or not self.stages:
-            raise ValueError("Curriculum: one start fraction per stage")
+            raise ValueError(f"Curriculum: {len(self.stages)} stages and {len(self.starts)} starts={self.starts}; "
+                             "allowed: one start fraction per stage, at least one stage")
         if self.starts[0] != 0.0 or list(self.starts) != sorted(self.starts) or self.starts[-1] >= 1.0:
             raise ValueError(f"Curriculum.starts={self.starts} must start at 0, increase and stay below 1")
 

@@ -50,7 +50,8 @@ DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
 
 
-def _check_regime(regime: str) -> None:
+def check_regime(regime: str) -> None:
+    """A ``ValueError`` naming the two regimes unless ``regime`` is one of them."""
     if regime not in ("horizontal", "vertical"):
         raise ValueError(f"regime={regime!r}; allowed: 'horizontal', 'vertical'")
 
@@ -81,7 +82,7 @@ class RLEnvSpec:
     ema_tau_s: float = DEFAULT_TAU_S  # s, the wind estimate's EMA time constant (0: raw estimate)
 
     def __post_init__(self):
-        _check_regime(self.regime)
+        check_regime(self.regime)
         if self.wind_input not in WIND_INPUTS:
             raise ValueError(f"RLEnvSpec.wind_input={self.wind_input!r}; allowed: {WIND_INPUTS}")
         if self.num_envs < 1:

@@ -20,6 +20,7 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 
 from ..config import config_to_dict
 from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM
+from ..manifest import repo_relative
 from ..validation import load_checkpoint
 from .config import ACTIVATIONS, PPOConfig
 from .envs import RLEnvSpec
@@ -67,11 +68,14 @@ def action_scale(actor: ProbabilisticActor) -> float:
 
 
 def spec_to_dict(spec: RLEnvSpec) -> dict:
-    """``spec`` as JSON-ready values (configs as nested dicts, plus the resolved ``env_config``)."""
+    """``spec`` as JSON-ready values (configs as nested dicts, plus the resolved ``env_config``;
+    the estimator's path relative to the repository, as every manifest records paths)."""
     d = {}
     for f in fields(spec):
         v = getattr(spec, f.name)
         d[f.name] = config_to_dict(v) if f.name in ("config", "ranges") and v is not None else v
+    if d.get("estimator_path") is not None:
+        d["estimator_path"] = repo_relative(d["estimator_path"])
     d["env_config"] = config_to_dict(spec.env_config)
     return d
 

@@ -20,7 +20,7 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.record.loggers import Logger
 
 from ..envs.runner import FlightResults
-from ..manifest import command_line, git_commit, save_atomic, write_json
+from ..manifest import command_line, git_commit, platform_info, repo_relative, save_atomic, write_json
 from ..keys import OBSERVATION_CHANNELS
 from .config import Curriculum, PPOConfig
 from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm_state_dict, wind_estimate
@@ -351,10 +351,12 @@ class PPOTrainer:
         return {
             "command": self.command,
             "git_commit": git_commit(),
+            "platform": platform_info(),
             "ppo_config": asdict(self.cfg),
             "env_spec": spec_to_dict(self.spec),
             "curriculum": asdict(self.curriculum) if self.curriculum else None,
-            "estimator": {"path": self.spec.estimator_path, "untrained": self.spec.untrained_estimator,
+            "estimator": {"path": None if self.spec.estimator_path is None else repo_relative(self.spec.estimator_path),
+                          "untrained": self.spec.untrained_estimator,
                           "manifest": getattr(est, "manifest", None)},
             "observation_channels": list(OBSERVATION_CHANNELS),
             "frames": p.frames,

@@ -30,6 +30,7 @@ stores names or a name -> id map, never a bare position.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from operator import attrgetter
 from typing import Callable, ClassVar, Sequence
 
 import torch
@@ -42,9 +43,9 @@ class Pattern(ABC):
     """The template of a trajectory pattern (one subclass per pattern).
 
     A subclass provides :meth:`path` and, unless it inherits them from :class:`LevelPattern` or
-    :class:`ClimbingPattern`, ``speed`` and ``duration`` (properties, or class attributes when
-    constant). Sizes come from ``self.cfg`` (a :class:`~quadwind_trl.config.TrajectoryConfig`)
-    or from class attributes.
+    :class:`ClimbingPattern`, ``speed`` and ``duration`` (properties, :func:`config_field` for a
+    config field, or class attributes when constant). Sizes come from ``self.cfg`` (a
+    :class:`~quadwind_trl.config.TrajectoryConfig`) or from class attributes.
     """
 
     by_phase: ClassVar[bool] = False  # progress s is a phase (rad) rather than an arc length (m)
@@ -79,17 +80,17 @@ class Pattern(ABC):
         return 0.0
 
 
+def config_field(name: str, doc: str | None = None) -> property:
+    """A read-only property of a pattern: the field ``name`` of its ``TrajectoryConfig``."""
+    return property(attrgetter(f"cfg.{name}"), doc=doc)
+
+
 class LevelPattern(Pattern):
     """A pattern flown at the episode's altitude, at cruise speed for ``horizontal_duration_s``."""
 
-    @property
-    def speed(self) -> float:
-        return self.cfg.cruise_speed_m_s
-
-    @property
-    def duration(self) -> float:
-        """The pattern only: the climb to the episode's altitude comes before it (run-time analytic)."""
-        return self.cfg.horizontal_duration_s
+    speed = config_field("cruise_speed_m_s")
+    duration = config_field("horizontal_duration_s", "The pattern only: the climb to the episode's altitude "
+                                                     "comes before it (run-time analytic).")
 
 
 class ClimbingPattern(Pattern):
@@ -102,13 +103,8 @@ class ClimbingPattern(Pattern):
     @abstractmethod
     def climb_rate(self) -> float: ...
 
-    @property
-    def climb_to(self) -> float:
-        return self.cfg.vertical_top_m
-
-    @property
-    def speed(self) -> float:
-        return self.cfg.vertical_speed_m_s
+    climb_to = config_field("vertical_top_m")
+    speed = config_field("vertical_speed_m_s")
 
     @property
     def duration(self) -> float:
@@ -154,15 +150,28 @@ def trajectory_names() -> tuple[str, ...]:
 def trajectory_name(traj_id: int) -> str:
     """The name of a registered ``traj_id``."""
     names = trajectory_names()
-    if not 0 <= int(traj_id) < len(names):
-        raise ValueError(f"traj_id={traj_id} is not registered; allowed: 0-{len(names) - 1} ({', '.join(names)})")
-    return names[int(traj_id)]
+    allowed = f"0-{len(names) - 1} ({', '.join(names)})"
+    try:
+        index = int(traj_id)  # a Python or numpy int, a 0-d tensor, a table's entry
+    except (TypeError, ValueError):
+        raise TypeError(f"traj_id={traj_id!r}: expected an integer id; allowed: {allowed}") from None
+    if not 0 <= index < len(names):
+        raise ValueError(f"traj_id={traj_id} is not registered; allowed: {allowed}")
+    return names[index]
+
+
+def trajectory_id(name: str) -> int:
+    """The id of a registered trajectory, or a ``ValueError`` listing the registered names."""
+    names = trajectory_names()
+    if name not in names:
+        raise ValueError(f"traj_id={name!r} is not a registered trajectory; registered: {', '.join(names)}")
+    return names.index(name)
 
 
 def trajectory_ids(names: Sequence[str], device: torch.device | str | None = None) -> Tensor:
     """``[len(names)]`` int64 ids of registered names (an unknown name fails, listing the registered)."""
-    from ...validation import trajectory_id
-
+    if isinstance(names, str):
+        raise TypeError(f"trajectories={names!r}: expected a sequence of names, such as ({names!r},)")
     return torch.tensor([trajectory_id(name) for name in names], dtype=torch.int64, device=device)
 
 
