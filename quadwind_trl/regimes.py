@@ -68,6 +68,8 @@ def regime_config(regime: str, base: EnvConfig | None = None, hold_control_steps
 DATASET_SEED = {"horizontal": 1001, "vertical": 2001}
 DATASET_UNSEEN_SEED = {"horizontal": 1002, "vertical": 2002}  # an independent LHS for generalisation
 EVAL_DESIGN_SEED = 9001  # disjoint from every dataset and training seed
+# the quickstart's first flight (evaluation/first_flight.py): a few episodes shown, never used to choose
+FIRST_FLIGHT_SEED = 9101
 
 
 @dataclass(frozen=True)

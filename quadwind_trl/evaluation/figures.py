@@ -126,23 +126,47 @@ def _trace(res: FlightResults, row: int, pattern_only: bool = False) -> tuple[np
 
 
 def trace_top_down(scenarios: TensorDictBase, results: dict[str, FlightResults], traj: str, wind: float, path: Path) -> Path:
-    """(a) top-down path of PD and wind-aware RL against the reference; (b) horizontal error."""
-    row = _pick(scenarios, traj, wind)
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.5))
-    pos, ref = _trace(results["pd"], row, pattern_only=True)
+    """The trace of the episode of ``traj`` in the middle of those at ``wind`` (:func:`trace_episode`)."""
+    return trace_episode(results, _pick(scenarios, traj, wind), f"{traj}, U = {wind:g} m/s", path)
+
+
+def trace_episode(results: dict[str, FlightResults], row: int, title: str, path: Path, wind_arrow: bool = False) -> Path:
+    """(a) top-down path of PD and wind-aware RL against the reference; (b) horizontal error.
+    ``wind_arrow`` adds (c): the mean wind the vehicle met, the turbulence-free wind at its
+    position averaged over the pattern (shear and veer to the flight altitude are in it)."""
+    fig, axes = plt.subplots(1, 3 if wind_arrow else 2, figsize=(13 if wind_arrow else 11, 4.5),
+                             gridspec_kw={"width_ratios": [4, 4, 1] if wind_arrow else [1, 1]})
+    a, b = axes[:2]
+    _, ref = _trace(results["pd"], row, pattern_only=True)
     a.plot(ref[:, 0], ref[:, 1], "k--", lw=0.8, label="reference")
     for name in ("pd", "aware"):
         pos, ref = _trace(results[name], row, pattern_only=True)
         err = np.linalg.norm(pos[:, :2] - ref[:, :2], axis=-1)
         rmse = results[name].rmse_xy[row].item()
-        a.plot(pos[:, 0], pos[:, 1], color=COLORS[name], lw=1, label=f"{LABELS[name]} (RMSE {rmse:.2f} m)")
+        a.plot(pos[:, 0], pos[:, 1], color=COLORS[name], lw=1, label=f"{LABELS[name]} (xy RMSE {rmse:.2f} m)")
         b.plot(np.arange(len(err)) / 10.0, err, color=COLORS[name], lw=0.8, label=LABELS[name])
-    a.set(xlabel="east (m)", ylabel="north (m)", title=f"{traj}, U = {wind:g} m/s")
+    a.set(xlabel="east (m)", ylabel="north (m)", title=title)
     a.set_aspect("equal", adjustable="datalim")
     a.legend(fontsize=8)
     b.set(xlabel="time since the pattern start (s)", ylabel="horizontal error (m)", title="tracking error over the pattern")
     b.legend()
+    if wind_arrow:
+        _wind_arrow(axes[2], results["pd"], row)
     return _save(fig, path)
+
+
+def _wind_arrow(a, res: FlightResults, row: int) -> None:
+    """An arrow along the episode's mean wind, with its speed and meteorological direction."""
+    valid = res.log["valid"][row]
+    east, north = res.log["truth", "mean_wind"][row][valid][:, :2].double().mean(0).tolist()
+    speed = float(np.hypot(east, north))
+    blows_from = float(np.degrees(np.arctan2(-east, -north))) % 360.0  # clockwise from north
+    # its own square panel: a track plot of equal aspect fixes its limits only when drawn
+    a.set(xlim=(-1, 1), ylim=(-1, 1), aspect="equal")
+    a.axis("off")
+    u, v = 0.8 * east / speed, 0.8 * north / speed
+    a.annotate("", xy=(u, v), xytext=(-u, -v), arrowprops={"arrowstyle": "-|>", "color": "tab:gray", "lw": 2.5})
+    a.text(0, -1.1, f"mean wind\n{speed:.1f} m/s\nfrom {blows_from:.0f} deg", ha="center", va="top", fontsize=9)
 
 
 def trace_3d(scenarios: TensorDictBase, results: dict[str, FlightResults], traj: str, wind: float, path: Path) -> Path:
