@@ -9,6 +9,8 @@
 * :mod:`.checkpoint`: :class:`EstimatorBundle` (a trained network + standardisation, a
   ``WindEstimator``), the registry of network classes and the loaders of shipped checkpoints;
 * :mod:`.ema`: the spike-gated EMA post-filter (``DEFAULT_TAU_S``);
+* :mod:`.ukf`: :class:`WindUKF`, a model-based ``WindEstimator`` (an unscented Kalman filter on
+  the airframe's drag law, with stated model error, :class:`UKFConfig`);
 * :mod:`.training`: the training run (imports the datasets: not re-exported here, so the
   transforms never pull the dataset generator).
 
@@ -27,6 +29,7 @@ from .features import HORIZONTAL_CHANNELS, RAW_RECORD_KEYS, VERTICAL_CHANNELS, F
 from .loss import EstimatorLoss, EstimatorLossConfig
 from .model import AttentionGRUEstimator, EstimatorConfig
 from .ring import FeatureRing
+from .ukf import UKFConfig, WindUKF
 
 __all__ = [
     "WindEstimator",
@@ -48,4 +51,6 @@ __all__ = [
     "AttentionGRUEstimator",
     "EstimatorConfig",
     "FeatureRing",
+    "UKFConfig",
+    "WindUKF",
 ]
