@@ -38,7 +38,7 @@ import torch
 
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import (CONTROLLERS, episode_table, episode_table_from_json, fly_controllers,
-                                              policy_compile_step, summarize_ablation)
+                                              policy_compile_step, policy_env_config, summarize_ablation)
 from quadwind_trl.evaluation.replay import replay_verdict, verify_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
@@ -53,7 +53,8 @@ def main() -> None:
     parser.add_argument("--sweeps", nargs="+", default=list(SWEEPS), choices=list(SWEEPS))
     parser.add_argument("--policy", type=Path, nargs="*", default=None,
                         help="policy checkpoints, one per regime in the order horizontal, vertical (default: shipped)")
-    parser.add_argument("--estimator", type=Path, nargs="*", default=None, help="estimator checkpoints, same order")
+    parser.add_argument("--estimator", type=Path, nargs="*", default=None,
+                        help="estimator checkpoints, same order, or 'ukf' (the model-based filter, horizontal only)")
     parser.add_argument("--blind-policy", type=Path, nargs="*", default=None,
                         help="policies trained with --wind-input zero, same order (default: shipped, if any)")
     parser.add_argument("--controllers", nargs="+", default=None, choices=list(CONTROLLERS),
@@ -100,9 +101,12 @@ def main() -> None:
             print(f"{name}: no trained-blind policy at {repo_relative(blind_path)}; flying {', '.join(controllers)}")
         elif "trained_blind" in controllers and not blind_path.exists():
             parser.error(f"--controllers trained_blind: no trained-blind policy at {blind_path} (--blind-policy)")
-        estimator = load_estimator(regime, checkpoint("estimator", regime, args.estimator))
+        payload = load_policy(policy_path)[1]
+        # the policy's own airframe: the network checks its channels, the filter models its drag
+        estimator = load_estimator(regime, checkpoint("estimator", regime, args.estimator),
+                                   config=policy_env_config(payload))
         scenarios, override = sweep_setup(sweep, args.quick)
-        compile_step = False if args.eager else policy_compile_step(load_policy(policy_path)[1])
+        compile_step = False if args.eager else policy_compile_step(payload)
         start = time.perf_counter()
         batch = min(args.batch or scenarios.batch_size[0], scenarios.batch_size[0])
         flies_blind = "trained_blind" in controllers
@@ -113,7 +117,7 @@ def main() -> None:
         summary.update(command=command_line(sys.argv), git_commit=commit, platform=platform_info(), policy=repo_relative(policy_path),
                        blind_policy=repo_relative(blind_path) if flies_blind else None,
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
-                       estimator_manifest=estimator.manifest.get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
+                       estimator_manifest=getattr(estimator, "manifest", {}).get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
         paths = figures.ablation_figures(name, scenarios, results, summary, fig_dir)
         aware = summary["rmse_xy"]["aware"]

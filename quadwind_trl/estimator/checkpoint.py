@@ -18,8 +18,10 @@ from torch import Tensor, nn
 from ..config import EnvConfig
 from ..manifest import CHECKPOINT_DIR
 from ..validation import load_checkpoint
+from .base import WindEstimator
 from .features import Schema, make_extractor
 from .model import AttentionGRUEstimator, EstimatorConfig
+from .ukf import WindUKF
 
 SCHEMAS = ("horizontal", "vertical")
 
@@ -196,13 +198,24 @@ def default_estimator_path(regime: Schema) -> Path:
     return CHECKPOINT_DIR / f"estimator_{regime}.pt"
 
 
+#: model-based estimators by the name a recipe's ``--estimator`` takes in place of a checkpoint
+MODEL_BASED_ESTIMATORS = ("ukf",)
+
+
 def load_estimator(regime: Schema, path: str | Path | None = None, *, untrained: bool = False, seed: int = 0,
-                   config: EnvConfig | None = None, device: torch.device | str = "cpu") -> EstimatorBundle:
-    """The estimator at ``path`` (default: the shipped one for ``regime``); with ``untrained=True``
-    and no path, a seeded random one. Fails with a clear message when nothing fits."""
+                   config: EnvConfig | None = None, device: torch.device | str = "cpu") -> WindEstimator:
+    """The estimator at ``path`` (default: the shipped one for ``regime``); ``path="ukf"``: the
+    model-based :class:`~quadwind_trl.estimator.ukf.WindUKF` on ``config``'s airframe (horizontal
+    schema only); with ``untrained=True`` and no path, a seeded random one. Fails with a clear
+    message when nothing fits."""
     _check_schema(regime)
     if path is None and untrained:
         return untrained_estimator(regime, seed, config).to(device)
+    if str(path) in MODEL_BASED_ESTIMATORS:
+        if regime != WindUKF.schema:
+            raise ValueError(f"estimator {str(path)!r} reads the {WindUKF.schema!r} feature schema; regime={regime!r} "
+                             f"has no model-based estimator (allowed: a checkpoint path)")
+        return WindUKF(config=config).to(device)
     path = Path(path) if path is not None else default_estimator_path(regime)
     if not path.exists():
         raise FileNotFoundError(

@@ -25,7 +25,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from ..config import EnvConfig, config_from_dict
-from ..envs.runner import FlightResults
+from ..envs.runner import FlightResults, NestedKey
 from ..envs.trajectories import trajectory_ids, trajectory_name
 from ..estimator import EstimatorBundle
 from ..rl.envs import make_env, policy_ema_tau_s
@@ -66,6 +66,7 @@ def fly_controllers(
     compile_step: bool | None = None,
     chunks: range | None = None,
     blind_policy_path: str | Path | None = None,
+    log_keys: Sequence[NestedKey] = TRACE_KEYS,
 ) -> dict[str, FlightResults]:
     """Fly ``scenarios`` with each controller (:func:`~quadwind_trl.rl.paired.fly_paired`);
     results per controller, in scenario order.
@@ -75,7 +76,9 @@ def fly_controllers(
     (default: :func:`policy_compile_step`) chooses the compiled or the eager simulator step.
     ``batch`` episodes fly at once (default: all); ``chunks`` flies only those batches.
     ``blind_policy_path`` is the trained-blind policy (needed for ``trained_blind``); it must have
-    trained on the same env config, so that every controller flies the same worlds."""
+    trained on the same env config, so that every controller flies the same worlds. ``log_keys``:
+    the entries of the 10 Hz flight record (default :data:`TRACE_KEYS`; any entry of the
+    transformed env's step output, e.g. ``"observation"``, the policy's normalised input)."""
     policies = {"aware": load_policy(policy_path, device=device)}
     if BLIND_TRAINED & set(controllers):
         if blind_policy_path is None:
@@ -106,7 +109,7 @@ def fly_controllers(
         return env, None if name == "pd" else actor
 
     flights = {name: flight(name) for name in controllers}
-    return fly_paired(flights, scenarios, log_keys=TRACE_KEYS, progress=progress, chunks=chunks)
+    return fly_paired(flights, scenarios, log_keys=log_keys, progress=progress, chunks=chunks)
 
 
 def episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults]) -> TensorDict:

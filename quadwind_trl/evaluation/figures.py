@@ -337,3 +337,77 @@ def ablation_figures(sweep: str, scenarios: TensorDictBase, results: dict[str, F
         draw_trace, traj, name = trace
         paths.append(draw_trace(scenarios, results, traj, float(scenarios["wind_speed_ref_m_s"].max()), fig_dir / name))
     return paths
+
+
+def diagnosis_episode(diag: dict[str, TensorDictBase], row: int, title: str, path: Path,
+                      out_of_range_z: float, obs_clip: float | None) -> Path:
+    """One episode's flight diagnostics (``evaluation.diagnosis.step_diagnostics`` per controller),
+    PD beside wind-aware RL over the scored part: position error, commanded (and, for RL, actual)
+    tilt and thrust as fractions of their limits, the residual action, the largest normalised
+    input against the training range, and the wind estimate against the true mean wind."""
+    fig, ax = plt.subplots(6, 1, figsize=(10, 13), sharex=True)
+    for name in ("pd", "aware"):
+        d = diag[name][row]
+        s = d["scored"].numpy()
+        t = d["time_s"].numpy()[s]
+        t0 = t[0]
+        style = dict(color=COLORS[name], lw=0.8)
+        ax[0].plot(t - t0, d["err_xy"].numpy()[s], label=f"{LABELS[name]}: xy", **style)
+        ax[0].plot(t - t0, d["err_z"].numpy()[s], ls=":", label=f"{LABELS[name]}: z", **style)
+        ax[1].plot(t - t0, d["tilt_cmd"].numpy()[s], label=f"{LABELS[name]}: commanded", **style)
+        ax[2].plot(t - t0, d["thrust"].numpy()[s], label=LABELS[name], **style)
+        if name == "aware":
+            ax[1].plot(t - t0, d["tilt"].numpy()[s], color="k", lw=0.5, alpha=0.6, label=f"{LABELS[name]}: actual")
+            for k, channel in enumerate(("thrust", "x torque", "y torque", "z torque")):
+                ax[3].plot(t - t0, d["action"].numpy()[s][:, k], lw=0.6, label=channel)
+            z = d["obs_z"].abs().numpy()[s]
+            ax[4].plot(t - t0, z.max(-1), color=COLORS[name], lw=0.6, label="max over channels")
+            ax[5].plot(t - t0, d["wind_hat"].numpy()[s], lw=0.8, color=COLORS[name], label="estimate (|wind_hat|)")
+            ax[5].plot(t - t0, d["wind_true"].numpy()[s], lw=0.8, color="k", label="true mean wind")
+            ax[5].plot(t - t0, d["wind_err"].numpy()[s], lw=0.6, color="tab:gray", label="|estimate - true|")
+    ax[0].set(ylabel="position error (m)", title=title)
+    ax[1].axhline(1.0, color="k", ls="--", lw=0.7)
+    ax[1].set(ylabel="tilt / limit")
+    ax[2].axhline(1.0, color="k", ls="--", lw=0.7)
+    ax[2].set(ylabel="thrust / limit")
+    ax[3].set(ylabel="residual action", ylim=(-1.05, 1.05))
+    ax[4].axhline(out_of_range_z, color="k", ls="--", lw=0.7, label=f"training range ({out_of_range_z:g} sigma)")
+    if obs_clip is not None:
+        ax[4].axhline(obs_clip, color="tab:red", ls="--", lw=0.7, label=f"observation clip ({obs_clip:g})")
+    ax[4].set(ylabel="|normalised input|", yscale="log")
+    ax[5].set(ylabel="wind speed (m/s)", xlabel="time since the pattern start (s)")
+    for a in ax:
+        a.legend(fontsize=7, loc="upper right", ncol=2)
+        a.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def diagnosis_groups(groups: dict[str, dict], path: Path) -> Path:
+    """Per sweep (columns), the worst episodes one by one and the median group's mean (rows):
+    xy RMSE, the fraction of the pattern with the PD's tilt command at its limit, the actual tilt
+    beyond it, the thrust at its limit, an input outside the training range, and the wind
+    estimate's error.
+    ``groups[sweep]``: ``{"labels": [...], "<indicator>": {"pd": [...], "aware": [...]}}``, the last
+    label the median group."""
+    rows = (("rmse_xy", "xy RMSE (m)", ("pd", "aware")),
+            ("tilt_cmd_saturated", "time PD tilt\ncommand at limit", ("pd", "aware")),
+            ("tilt_beyond_limit", "time actual tilt\nbeyond limit", ("pd", "aware")),
+            ("thrust_saturated", "time thrust\nat limit", ("pd", "aware")),
+            ("obs_out_of_range", "time with input\noutside training", ("aware",)),
+            ("wind_estimate_error", "wind estimate\nerror (m/s)", ("aware",)))
+    fig, ax = plt.subplots(len(rows), len(groups), figsize=(6 * len(groups), 1.9 * len(rows) + 1), squeeze=False,
+                           sharex="col")
+    for j, (sweep, g) in enumerate(groups.items()):
+        x = np.arange(len(g["labels"]))
+        for i, (key, label, names) in enumerate(rows):
+            a = ax[i, j]
+            width = 0.8 / len(names)
+            for k, name in enumerate(names):
+                a.bar(x + (k - (len(names) - 1) / 2) * width, g[key][name], width, color=COLORS[name], label=LABELS[name])
+            a.set(ylabel=label)
+            a.set_xticks(x, g["labels"], rotation=60, fontsize=7)
+            a.grid(alpha=0.3, axis="y")
+            if i == 0:
+                a.set_title(f"{sweep}: worst 10 by wind-aware xy RMSE; median group")
+                a.legend(fontsize=7)
+    return _save(fig, path)

@@ -27,7 +27,8 @@ from ..estimator import load_estimator
 from ..manifest import CHECKPOINT_DIR, ROOT, platform_info, same_platform
 from ..quick import QuickFlights
 from ..regimes import SWEEP_REGIME, SWEEPS
-from .ablation import fly_controllers
+from ..rl.policy import load_policy
+from .ablation import fly_controllers, policy_env_config
 from .tracking import sweep_setup
 
 METRICS = ("rmse_xy", "rmse_z")
@@ -170,7 +171,8 @@ def verify_ablation(results: dict, chunks: range | None = None, policy_path=None
     scenarios, override = sweep_setup(sweep, quick)
     policy = _recorded(policy_path or results["policy"])
     blind = results.get("blind_policy")
-    estimator = load_estimator(regime, estimator_path or results.get("estimator"))
+    estimator = load_estimator(regime, estimator_path or results.get("estimator"),
+                               config=policy_env_config(load_policy(policy)[1]))
     flown = fly_controllers(regime, scenarios, policy, estimator, tuple(results["controllers"]),
                             batch=results.get("batch", results["episodes"]), config_override=override,
                             compile_step=bool(results.get("compile_step", False)), chunks=chunks,
