@@ -19,7 +19,8 @@ the fastest), recorded in the file. ``--verify FILE`` writes nothing: it re-flie
 estimator, flights, simulator, batch layout) and reports, per controller, against the
 reproducibility contract (docs/simulator.md, "Exact replay"): "bitwise (same platform)" on the
 platform the file records, else the distribution of the deviations and whether they stay within
-the cross-platform tolerance (``--quick`` flights) or agree statistically (full flights); exit
+the cross-platform tolerance (where one was measured: quick horizontal flights) or agree
+statistically (any other); exit
 status 1 where the contract does not hold. A batch is the unit because only the recorded layout
 replays bit for bit (``evaluation.replay.verify_ablation``). ``--resummarize
 FILE...`` flies nothing: it recomputes a file's tables from its own per-episode table with the
@@ -39,7 +40,7 @@ import torch
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import (CONTROLLERS, episode_table, episode_table_from_json, fly_controllers,
                                               policy_compile_step, policy_env_config, summarize_ablation)
-from quadwind_trl.evaluation.replay import replay_verdict, verify_ablation
+from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, replay_verdict, verify_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
@@ -149,13 +150,14 @@ def verify(args: argparse.Namespace) -> None:
     agreement, episodes = verify_ablation(results, chunks)
     batch = results.get("batch", results["episodes"])
     recorded = results.get("platform")
+    quick = bool(results.get("quick", "--quick" in results.get("command", "").split()))
     print(f"{args.verify} ({results['sweep']}, recorded at {results['git_commit']}), batches of {batch}: "
           f"{'all' if chunks is None else f'{chunks.start}:{chunks.stop}'} ({episodes} episodes), "
           f"{'compiled' if results.get('compile_step') else 'eager'}, {time.perf_counter() - t0:.0f} s")
     print(f"  recorded on: {recorded or 'not recorded'}\n  flown on:    {platform_info()}")
     holds = True
     for name, agreed in agreement.items():
-        ok, verdict = replay_verdict(agreed, recorded, long_flights=not results.get("quick", False))
+        ok, verdict = replay_verdict(agreed, recorded, CROSS_PLATFORM_RTOL.get((results["sweep"], quick)))
         holds &= ok
         print(f"  {name}: {verdict}")
     if not holds:

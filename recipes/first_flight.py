@@ -80,7 +80,7 @@ def main() -> None:
                    estimator=repo_relative(ESTIMATOR), compile_step=False, wall_time_s=seconds, figure=repo_relative(figure))
     write_json(args.out / "first_flight.json", summary)
     print("These are the shipped policy's numbers: it trained at paper scale (docs/results.md has its 225-episode "
-          "evaluation). The toy pipeline that follows retrains everything at toy scale in minutes; its numbers say nothing "
+          "evaluation). The toy pipeline (scripts/quickstart.sh runs it beside this flight) retrains everything at toy scale in minutes; its numbers say nothing "
           "about the method.")
     print(f"Figure: {repo_relative(figure)} (episode {row}, the median reduction); table: {repo_relative(args.out / 'first_flight.json')}")
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.evaluation.replay import compare_records, replay, replay_verdict
+from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, compare_records, replay, replay_verdict
 from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
 from quadwind_trl.regimes import SWEEPS
 
@@ -55,7 +55,7 @@ def main() -> None:
         print(f"wrote {args.out}")
     if args.compare is not None:
         holds, verdict = replay_verdict(compare_records(ref["results"], flown), ref.get("platform"),
-                                        long_flights=not ref["quick"])
+                                        CROSS_PLATFORM_RTOL.get((ref["sweep"], ref["quick"])))
         print(f"{args.sweep} episodes {start}:{stop} against {args.compare} (recorded at {ref['git_commit']}): {verdict}")
         if not holds:
             sys.exit(1)

@@ -36,8 +36,6 @@ from quadwind_trl.manifest import git_commit, write_json
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
-# where scripts/quickstart.sh flies the shipped policy before the toy run (recipes/first_flight.py)
-FIRST_FLIGHT = ROOT / "runs" / "quick" / "first_flight"
 
 
 @dataclass(frozen=True)
@@ -247,13 +245,6 @@ def toy_summary(q: Path) -> str:
     if figures:
         lines.append(f"  {_shown(q / 'figures')}/   {len(figures)} figures ({', '.join(f.name for f in figures[:4])}{', ...' if len(figures) > 4 else ''})")
     lines.append(f"  {_shown(q)}/ppo_*/logs   PPO training logs (CSV)")
-    first = FIRST_FLIGHT / "first_flight.json"
-    if first.exists():
-        ff = json.loads(first.read_text())
-        xy = ff["rmse_xy"]["aware"]
-        lines.append(f"The real result, the shipped policy's (recipes/first_flight.py, {xy['n']} paper-scale episodes): xy RMSE "
-                     f"reduction {xy['improvement']:+.1f} % vs PD (95 % CI {xy['ci_low']:+.1f} to {xy['ci_high']:+.1f}); "
-                     f"figure {_shown(FIRST_FLIGHT / 'first_flight.png')}")
     return "\n".join(lines)
 
 

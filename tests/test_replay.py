@@ -3,7 +3,8 @@
 * one machine, one run: the same episodes flown twice give the same bits;
 * a committed record (``tests/data/replay_*.json``, PD on the default vehicle and the shipped
   policies wind-blind and wind-aware) re-flies bit for bit on the platform that recorded it, and
-  within ``CROSS_PLATFORM_RTOL`` on any other (another processor, kernel path, BLAS or torch);
+  on any other (another processor, kernel path, BLAS or torch) within ``CROSS_PLATFORM_RTOL``
+  where one was measured (the quick horizontal slice), else statistically (the vertical one);
 * another kernel path on this machine (a lower ``ATEN_CPU_CAPABILITY`` and MKL instruction set in
   a subprocess: what another processor runs) stays within that tolerance, so an assumption that
   holds on one processor only fails here, in CI, not on a user's machine.
@@ -34,7 +35,7 @@ def test_sweep_slice_replays_its_record(sweep):
     flown = replay(record["sweep"], slice(start, stop), record["quick"])
     agreement = compare_records(record["results"], flown)
     assert agreement.total == 3 * 2 * (stop - start)
-    holds, verdict = replay_verdict(agreement, record.get("platform"))
+    holds, verdict = replay_verdict(agreement, record.get("platform"), CROSS_PLATFORM_RTOL.get((sweep, record["quick"])))
     assert holds, f"record made at {record['git_commit']} on {record.get('platform')}: {verdict}"
 
 
@@ -72,5 +73,6 @@ def test_another_kernel_path_stays_within_the_cross_platform_tolerance(tmp_path,
     other = json.loads(out.read_text())
     assert not same_platform(other["platform"], platform_info())  # the contract's other-platform branch
     agreement = compare_records(other["results"], eager_slice)
-    holds, verdict = replay_verdict(agreement, other["platform"])
-    assert holds, f"{verdict} (tolerance {CROSS_PLATFORM_RTOL:.0e}; docs/simulator.md, 'Exact replay')"
+    rtol = CROSS_PLATFORM_RTOL[("horizontal", True)]
+    holds, verdict = replay_verdict(agreement, other["platform"], rtol)
+    assert holds, f"{verdict} (tolerance {rtol:.0e}; docs/simulator.md, 'Exact replay')"

@@ -1,5 +1,5 @@
 """The quickstart's first flight: the shipped wind-aware policy against PD on a few paper-scale
-episodes, so that a newcomer's first run shows the result, which the toy pipeline that follows
+episodes, so that a newcomer's first run shows the result, which the toy pipeline beside it
 cannot (``recipes/first_flight.py``; ``scripts/quickstart.sh`` runs it first).
 
 The episodes are the shipped policy's own world: the vehicle, sensors and atmosphere of the env

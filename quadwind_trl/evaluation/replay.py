@@ -8,8 +8,9 @@ sweep's regime on the same episodes, flown in one batch of the slice's size, and
 was made on (:func:`~quadwind_trl.manifest.platform_info`). On the same platform a re-flight
 must reproduce every value to the bit; on another (another processor, ATen kernel path, BLAS or
 torch) the last bits of the policy's and estimator's matrix products and reductions differ, so a
-short flight's values must agree within :data:`CROSS_PLATFORM_RTOL`, and a long flight, whose
-trajectory may diverge, must agree statistically (:meth:`Agreement.statistically_equal`).
+record of a kind whose deviations were measured small (:data:`CROSS_PLATFORM_RTOL`) must agree
+within that tolerance, and any other, whose trajectories may diverge, statistically
+(:meth:`Agreement.statistically_equal`).
 """
 from __future__ import annotations
 
@@ -32,12 +33,14 @@ from .ablation import fly_controllers, policy_env_config
 from .tracking import sweep_setup
 
 METRICS = ("rmse_xy", "rmse_z")
-#: The largest relative deviation of a short (quick-sweep) flight's per-episode RMSE accepted
-#: between two platforms: about 17x the largest measured. ATen's scalar kernels
-#: (``ATEN_CPU_CAPABILITY=default``) against AVX-512 on the quick horizontal slice moved values
-#: by at most 6.0e-6, AVX2 by 5.6e-6, an Intel AVX-512 machine against the AMD one by about 2e-6
-#: (docs/simulator.md, "Exact replay").
-CROSS_PLATFORM_RTOL = 1e-4
+#: The largest relative deviation of a per-episode RMSE accepted between two platforms, for the
+#: kinds of record (sweep, quick) where one was measured to stay small; about 17x the largest
+#: measured on the quick horizontal slice: ATen's scalar kernels (``ATEN_CPU_CAPABILITY=default``)
+#: against AVX-512 moved values by at most 6.0e-6, AVX2 by 5.6e-6, an Intel AVX-512 machine against
+#: the AMD one by about 2e-6 (docs/simulator.md, "Exact replay"). Every other kind is checked
+#: statistically: full-length flights, and the quick vertical slice, whose climbs carried an
+#: AVX2-only change of the estimator's softmax to 2.1e-2 (Intel Xeon, torch 2.11).
+CROSS_PLATFORM_RTOL: dict[tuple[str, bool], float] = {("horizontal", True): 1e-4}
 
 
 @dataclass(frozen=True)
@@ -96,22 +99,21 @@ class Agreement:
                 f"(sd {d.std() if len(d) > 1 else 0.0:.2e}); crash flags changed: {self.flags_changed}")
 
 
-def replay_verdict(agreement: Agreement, recorded_platform: dict | None, long_flights: bool = False
+def replay_verdict(agreement: Agreement, recorded_platform: dict | None, rtol: float | None = None
                    ) -> tuple[bool, str]:
     """The reproducibility contract (docs/simulator.md, "Exact replay"): ``(holds, what was
     checked)``. Same platform: every value bit-identical. Another platform (or a record that names
-    none): short flights within :data:`CROSS_PLATFORM_RTOL` with no crash flag changed; long
-    flights (``long_flights``), statistical agreement (:meth:`Agreement.statistically_equal`)."""
+    none): with ``rtol`` (the record kind's :data:`CROSS_PLATFORM_RTOL`), every value within it and
+    no crash flag changed; without, statistical agreement (:meth:`Agreement.statistically_equal`)."""
     if same_platform(recorded_platform, platform_info()):
         return agreement.bitwise, f"bitwise (same platform): {agreement.describe()}"
     where = "other platform" if recorded_platform else "platform not recorded"
-    if long_flights:
+    if rtol is None:
         ok = agreement.statistically_equal()
         return ok, (f"{where}, statistical agreement {'holds' if ok else 'FAILS'} (95 % interval of the mean "
                     f"difference {'contains' if ok else 'excludes'} 0): {agreement.describe()}")
-    ok = agreement.max_relative <= CROSS_PLATFORM_RTOL and agreement.flags_changed == 0
-    return ok, (f"{where}, within {CROSS_PLATFORM_RTOL:.0e} relative: {'yes' if ok else 'NO'}; "
-                f"{agreement.describe()}")
+    ok = agreement.max_relative <= rtol and agreement.flags_changed == 0
+    return ok, f"{where}, within {rtol:.0e} relative: {'yes' if ok else 'NO'}; {agreement.describe()}"
 
 
 def replay(sweep_name: str, rows: slice, quick: bool, compile_step: bool | None = None,
