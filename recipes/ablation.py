@@ -40,7 +40,7 @@ import torch
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import (CONTROLLERS, episode_table, episode_table_from_json, fly_controllers,
                                               policy_compile_step, policy_env_config, summarize_ablation)
-from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, replay_verdict, verify_ablation
+from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, flown_quick, replay_verdict, verify_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
@@ -150,7 +150,7 @@ def verify(args: argparse.Namespace) -> None:
     agreement, episodes = verify_ablation(results, chunks)
     batch = results.get("batch", results["episodes"])
     recorded = results.get("platform")
-    quick = bool(results.get("quick", "--quick" in results.get("command", "").split()))
+    quick = flown_quick(results)
     print(f"{args.verify} ({results['sweep']}, recorded at {results['git_commit']}), batches of {batch}: "
           f"{'all' if chunks is None else f'{chunks.start}:{chunks.stop}'} ({episodes} episodes), "
           f"{'compiled' if results.get('compile_step') else 'eager'}, {time.perf_counter() - t0:.0f} s")

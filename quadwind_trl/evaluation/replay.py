@@ -154,6 +154,12 @@ def _recorded(path: str | Path) -> Path:
     return path if path.is_absolute() or path.exists() else ROOT / path
 
 
+def flown_quick(results: dict) -> bool:
+    """Whether an ablation results file flew the ``--quick`` flights (older files only say so in
+    their command)."""
+    return bool(results.get("quick", "--quick" in results.get("command", "").split()))
+
+
 def verify_ablation(results: dict, chunks: range | None = None, policy_path=None, estimator_path=None
                     ) -> tuple[dict[str, Agreement], int]:
     """Re-fly batches ``chunks`` (default: all) of an ablation results file (``recipes/ablation.py``
@@ -169,7 +175,7 @@ def verify_ablation(results: dict, chunks: range | None = None, policy_path=None
     episodes in one)."""
     sweep_name = results["sweep"]
     sweep, regime = SWEEPS[sweep_name], SWEEP_REGIME[sweep_name]
-    quick = bool(results.get("quick", "--quick" in results.get("command", "").split()))
+    quick = flown_quick(results)
     scenarios, override = sweep_setup(sweep, quick)
     policy = _recorded(policy_path or results["policy"])
     blind = results.get("blind_policy")
