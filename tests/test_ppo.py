@@ -17,7 +17,7 @@ from quadwind_trl.estimator import untrained_estimator
 from quadwind_trl.regimes import regime_config
 from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, vecnorm
 from quadwind_trl.rl.config import Curriculum, PPOConfig, vertical_curriculum
-from quadwind_trl.rl.paired import default_eval_scenarios
+from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.policy import build_actor_critic, load_policy
 from quadwind_trl.rl.trainer import PPOTrainer
 
@@ -64,6 +64,52 @@ def test_estimator_gets_no_gradient_and_stays_unchanged_through_a_ppo_update():
     assert all(torch.equal(before[k], after[k]) for k in before)
 
 
+def test_trainer_keeps_the_policy_of_its_best_validation_evaluation(tmp_path):
+    spec = hover_spec(duration_s=1.0)
+    cfg = PPOConfig(total_frames=3 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
+                    lr=3e-2, eval_every_frames=1, checkpoint_every_frames=10**9)
+    sc = validation_scenarios("horizontal", 2)
+    sc.update({"traj_id": torch.tensor([9, 9]), "altitude_m": torch.tensor([10.0, 10.0]), "start_step": torch.tensor([-1, -1])})
+    out = tmp_path / "run"
+    PPOTrainer(spec, cfg, out, eval_scenarios=sc, progress=False).train()
+    manifest = json.loads((out / "policy.json").read_text())
+    scores = [e["validation_score"] for e in manifest["evals"]]
+    assert len(scores) == 3
+    best = min(range(3), key=scores.__getitem__)
+    sel = manifest["selection"]
+    assert sel["evaluations"] == 3 and sel["frames"] == manifest["evals"][best]["frames"] == manifest["metrics"]["frames"]
+    assert sel["validation_score"] == scores[best] and "worst 10%" in sel["rule"]
+    kept, ref = torch.load(out / "policy.pt", weights_only=True), torch.load(out / "checkpoints" / "best.pt", weights_only=True)
+    assert all(torch.equal(kept["policy"][k], ref["policy"][k]) for k in ref["policy"])
+    last = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)  # the last iterate, kept for resuming
+    assert (best == 2) == all(torch.equal(kept["policy"][k], last["policy"][k]) for k in ref["policy"])
+
+
+def test_validation_score_and_scenarios():
+    from quadwind_trl.regimes import SWEEPS, VALIDATION_SWEEPS
+    from quadwind_trl.rl.paired import validation_score
+
+    rmse = torch.arange(1.0, 21.0)  # 20 episodes: the worst 10 % are 19 and 20
+    assert validation_score(rmse) == pytest.approx(10.5 + 19.5)
+    assert validation_score(torch.tensor([2.0])) == pytest.approx(4.0)
+    for regime, sweep in VALIDATION_SWEEPS.items():
+        sc = validation_scenarios(regime)
+        assert sc.batch_size[0] >= 45
+        assert sweep.design_seed not in {s.design_seed for s in SWEEPS.values()}
+        ranges = sweep.ranges
+        assert float(sc["wind_speed_ref_m_s"].max()) == ranges.wind_speed_m_s[1]  # the strong-wind corner
+        assert float(sc["turb_intensity"].max()) == ranges.intensity[1]
+        corner = (sc["wind_speed_ref_m_s"] == ranges.wind_speed_m_s[1]) & (sc["turb_intensity"] == ranges.intensity[1])
+        assert int(corner.sum()) == len(sweep.trajectories)
+        for level in sweep.wind_speeds:  # every stability at every wind speed
+            assert set(sc["stability"][sc["wind_speed_ref_m_s"] == level].tolist()) == {0, 1, 2}
+    assert validation_scenarios("vertical", 3).batch_size[0] == 3
+    with pytest.raises(ValueError, match="episodes=0"):
+        validation_scenarios("horizontal", 0)
+    with pytest.raises(ValueError, match="regime='ood'"):
+        validation_scenarios("ood")
+
+
 def test_curriculum_stages():
     cur = vertical_curriculum()
     assert cur.stages == (("vertical_climb",), ("vertical_climb", "spiral_ascent"),
@@ -79,7 +125,7 @@ def test_trainer_checkpoints_resumes_and_exports(tmp_path):
     cfg = PPOConfig(total_frames=2 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
                     eval_every_frames=0, checkpoint_every_frames=1)
     out = tmp_path / "run"
-    sc = default_eval_scenarios("horizontal", 1)
+    sc = validation_scenarios("horizontal", 1)
     sc.update({"traj_id": torch.tensor([9]), "altitude_m": torch.tensor([10.0]), "start_step": torch.tensor([-1])})
     res = PPOTrainer(spec, cfg, out, eval_scenarios=sc, progress=False).train()
     assert res.frames == 256 and res.iterations == 2 and len(res.history) == 2
@@ -178,7 +224,7 @@ def test_fly_paired_refuses_envs_of_different_batch_sizes():
     from quadwind_trl.rl.paired import fly_paired
 
     cfg = regime_config("horizontal")
-    sc = default_eval_scenarios("horizontal", 2)
+    sc = validation_scenarios("horizontal", 2)
     with pytest.raises(ValueError, match="batch size"):
         fly_paired({"pd": (QuadWindEnv(cfg, batch_size=[2]), None), "other": (QuadWindEnv(cfg, batch_size=[1]), None)}, sc)
 
@@ -190,7 +236,7 @@ def test_quick_flights_shorten_the_config_and_start_airborne():
     short = PPO_QUICK["vertical"].config(cfg)
     assert (short.trajectories.vertical_top_m, short.trajectories.vertical_hold_s) == (10.0, 1.0)
     assert short.trajectories.horizontal_duration_s == cfg.trajectories.horizontal_duration_s  # None: unchanged
-    sc = default_eval_scenarios("vertical", 2)
+    sc = validation_scenarios("vertical", 2)
     top = DEFAULT_RANGES["vertical"].top_altitude_m
     quick = SWEEP_QUICK.scenarios(sc, top)
     assert (quick["start_step"] == -1).all() and torch.equal(quick["altitude_m"], sc["altitude_m"])  # climbs keep their top

@@ -19,10 +19,9 @@ from ..quick import PPO_QUICK
 from ..regimes import regime_config
 from .config import PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, validated_tau_s
-from .paired import default_eval_scenarios
+from .paired import validation_scenarios
 from .trainer import PPOTrainer
 
-DEFAULT_EVAL_EPISODES = {"horizontal": 10, "vertical": 8}
 # frames between evaluations: a vertical evaluation flies up to 30,900 steps (~5 min), a horizontal
 # one 21,740 (~3.5 min) at ~10 ms per step on this 2-core machine
 DEFAULT_EVAL_EVERY = {"horizontal": 500_000, "vertical": 750_000}
@@ -54,7 +53,8 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--eval-every", type=int, default=None,
                    help=f"frames between evaluations against PD, 0: only at the end (default {DEFAULT_EVAL_EVERY[regime]:,})")
     p.add_argument("--eval-episodes", type=int, default=None,
-                   help=f"episodes of the periodic evaluation, 0: none (default {DEFAULT_EVAL_EPISODES[regime]})")
+                   help="episodes of the validation sweep each evaluation flies (an even spread), 0: none, and the "
+                        "run keeps its last iterate (default: all of them; --quick: 1)")
     p.add_argument("--sensing", default="navigation", choices=list(SENSING),
                    help="what the PD flies on (config.with_sensing): the nav filter as shipped (default), the same "
                         "sensors without bias walks, or the true state; an experiment, not the paper's vehicle")
@@ -112,8 +112,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     spec = replace(spec, ema_tau_s=args.ema_tau_s if args.ema_tau_s is not None else validated_tau_s(bundle))
     print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s", flush=True)
 
-    episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else DEFAULT_EVAL_EPISODES[regime])
-    scenarios = default_eval_scenarios(regime, episodes) if episodes > 0 else None
+    episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)
+    scenarios = validation_scenarios(regime, episodes) if episodes != 0 else None
     if args.quick and scenarios is not None:
         scenarios = PPO_QUICK[regime].scenarios(scenarios, DEFAULT_RANGES[regime].top_altitude_m)
     out = Path(args.out or f"runs/ppo_{regime}{'_quick' if args.quick else ''}")
@@ -135,7 +135,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     print(f"done: {result.frames} frames, {result.iterations} iterations, {time.perf_counter() - t0:.0f} s this session "
           f"({result.wall_time_s:.0f} s in total) -> {out / 'policy.pt'}")
     if m:
-        print(f"last evaluation: rmse {m['rmse']:.3f} m vs PD {m['pd_rmse']:.3f} m "
+        print(f"kept policy (evaluated at {m['frames']:,} frames, {manifest['selection']['evaluations']} evaluations): "
+              f"rmse {m['rmse']:.3f} m vs PD {m['pd_rmse']:.3f} m "
               f"(RMSE reduction {m['improvement_vs_pd']:+.1f} %; xy {m['improvement_rmse_xy_pct']:+.1f} %, "
               f"z {m['improvement_rmse_z_pct']:+.1f} %; positive = better than PD), "
               f"win rate {m['win_rate']:.2f}, crashed {m['crashed']}")

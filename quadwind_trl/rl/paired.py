@@ -5,11 +5,13 @@ initial state), so flying one scenario batch with different controllers, each in
 same batch size, gives each controller exactly the same world (``docs/simulator.md``, exact
 replay). :func:`fly_paired` is that primitive; the trainer's periodic evaluation against PD
 (:mod:`quadwind_trl.rl.trainer`) and the ablation (:mod:`quadwind_trl.evaluation.ablation`) both
-fly through it. :func:`improvement` and :func:`win_rate` are the paired statistics both report;
+fly through it. :func:`improvement` and :func:`win_rate` are the paired statistics both report,
+:func:`validation_score` the rule training keeps its policy by;
 the bootstrap and the decomposition built on them are in :mod:`quadwind_trl.evaluation.statistics`.
 """
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from typing import Callable, Iterator, Mapping, Sequence
 
@@ -22,6 +24,7 @@ from ..envs.runner import FlightResults, NestedKey, fly
 
 Policy = Callable[[TensorDictBase], TensorDictBase]
 Flight = tuple[EnvBase, Policy | None]  # (env, policy); policy None flies the PD baseline
+VALIDATION_TAIL_FRACTION = 0.1  # the share of worst validation episodes the selection rule adds
 
 
 def improvement(baseline: Tensor, other: Tensor) -> float:
@@ -80,24 +83,35 @@ def paired_metrics(policy: FlightResults, pd: FlightResults) -> dict[str, float]
     out["improvement_vs_pd"] = out["improvement_rmse_pct"]
     wins, pairs = win_rate(pd.rmse, policy.rmse)
     out["win_rate"] = wins / pairs
+    out["rmse_worst"] = float(policy.rmse.max())
+    out["pd_rmse_worst"] = float(pd.rmse.max())
+    out["validation_score"] = validation_score(policy.rmse)
     out["crashed"] = int(policy.crashed.sum())
     out["episodes"] = int(policy.rmse.numel())
     return out
 
 
-def default_eval_scenarios(regime: str, episodes: int = 5) -> TensorDictBase:
-    """The trainer's small fixed evaluation set: ``episodes`` rows of the regime's paper sweep,
-    one per trajectory first, spread over the wind levels (held-out design seed, like the sweep)."""
-    from ..regimes import HORIZONTAL_SWEEP, VERTICAL_SWEEP
+def validation_score(rmse: Tensor) -> float:
+    """The model-selection rule (lower is better, m): the mean episode RMSE plus the mean RMSE of
+    the worst :data:`VALIDATION_TAIL_FRACTION` of the episodes (at least one). The tail term prices
+    the rare lost flight that a mean over 45 episodes would average away."""
+    rmse = rmse.double().flatten()
+    worst = rmse.topk(max(1, math.ceil(VALIDATION_TAIL_FRACTION * rmse.numel()))).values
+    return float(rmse.mean() + worst.mean())
 
-    sweep = HORIZONTAL_SWEEP if regime == "horizontal" else VERTICAL_SWEEP
-    sc = sweep.scenarios()
+
+def validation_scenarios(regime: str, episodes: int | None = None) -> TensorDictBase:
+    """The regime's validation sweep (:data:`~quadwind_trl.regimes.VALIDATION_SWEEPS`), on which
+    training evaluates and selects its policy; ``episodes``: an evenly spread subset of it (smoke
+    runs and tests), first and last rows included."""
+    from ..regimes import VALIDATION_SWEEPS
+
+    if regime not in VALIDATION_SWEEPS:
+        raise ValueError(f"regime={regime!r}; allowed: {', '.join(repr(r) for r in VALIDATION_SWEEPS)}")
+    sc = VALIDATION_SWEEPS[regime].scenarios().exclude("case_id", "seed_index")
     n = sc.batch_size[0]
-    t = len(sweep.trajectories)
-    cases = n // t
-    # case-major, trajectory-minor: pick case c_i (spread over the grid) for trajectory i % t
-    rows = []
-    for i in range(episodes):
-        case = (i * (cases // max(episodes, 1)) + 7 * i) % cases
-        rows.append(case * t + (i % t))
-    return sc[torch.tensor(rows)].exclude("case_id", "seed_index")
+    if episodes is None or episodes == n:
+        return sc
+    if not 1 <= episodes <= n:
+        raise ValueError(f"episodes={episodes}; allowed: 1 to {n} (the {regime} validation sweep), or None for all")
+    return sc[torch.linspace(0, n - 1, episodes).round().long()]

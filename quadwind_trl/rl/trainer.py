@@ -24,9 +24,14 @@ from ..manifest import command_line, git_commit, platform_info, repo_relative, s
 from ..keys import OBSERVATION_CHANNELS
 from .config import Curriculum, PPOConfig
 from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm_state_dict, wind_estimate
-from .paired import fly_paired, paired_metrics
+from .paired import VALIDATION_TAIL_FRACTION, fly_paired, paired_metrics
 from .policy import action_scale, build_actor_critic, policy_payload, spec_to_dict
 from .update import PPOUpdate
+
+
+SELECTION_RULE = (f"the policy of the evaluation with the lowest validation score: mean episode RMSE + mean RMSE of the "
+                  f"worst {VALIDATION_TAIL_FRACTION:.0%} of episodes, on the regime's validation sweep; the last iterate "
+                  "when the run evaluates nothing")
 
 
 def episode_steps_hint(spec: RLEnvSpec) -> int:
@@ -69,6 +74,7 @@ class Progress:
     evals: list[dict] = field(default_factory=list)
     last_eval_frames: int = 0
     last_ckpt_frames: int = 0
+    best: dict | None = None  # the evaluation the kept policy comes from (checkpoints/best.pt)
 
 
 @dataclass
@@ -99,7 +105,9 @@ class PPOTrainer:
         OUT/logs/<exp>/scalars/*.csv    TorchRL CSVLogger (TensorBoard with logger="tensorboard")
         OUT/checkpoints/latest.pt       policy, value, optimiser, VecNorm stats, RNG, progress
         OUT/checkpoints/latest.json     its manifest
-        OUT/policy.pt, OUT/policy.json  the final policy + frozen normalisation + manifest
+        OUT/checkpoints/best.pt         the policy of the best evaluation so far (SELECTION_RULE)
+        OUT/policy.pt, OUT/policy.json  the kept policy + frozen normalisation + manifest: the best
+                                        evaluated one, or the last iterate when nothing is evaluated
     """
 
     def __init__(
@@ -132,6 +140,10 @@ class PPOTrainer:
     @property
     def checkpoint_path(self) -> Path:
         return self.out_dir / "checkpoints" / "latest.pt"
+
+    @property
+    def best_path(self) -> Path:
+        return self.out_dir / "checkpoints" / "best.pt"
 
     # --- the loop ------------------------------------------------------------------------------
 
@@ -299,10 +311,14 @@ class PPOTrainer:
         p.last_eval_frames = p.frames
         p.evals = list(p.evals) + [metrics]
         self._log(s.logger, "eval", metrics, p.frames)
+        if p.best is None or metrics["validation_score"] < p.best["validation_score"]:
+            save_atomic(self._policy_file(s), self.best_path)
+            p.best = {"frames": p.frames, "iteration": p.iteration, "validation_score": metrics["validation_score"]}
         if self.progress:
             print(f"[eval @ {p.frames} frames] rmse {metrics['rmse']:.3f} m vs PD {metrics['pd_rmse']:.3f} m "
                   f"(RMSE reduction {metrics['improvement_vs_pd']:+.1f} %, positive = better), win rate {metrics['win_rate']:.2f}, "
-                  f"crashed {metrics['crashed']}, {metrics['eval_s']:.0f} s", flush=True)
+                  f"crashed {metrics['crashed']}, validation score {metrics['validation_score']:.3f} m"
+                  f"{' (best so far)' if p.best['frames'] == p.frames else ''}, {metrics['eval_s']:.0f} s", flush=True)
 
     def _checkpoint(self, s: _Session) -> None:
         """``checkpoints/latest.pt``: everything :meth:`train` needs to resume, and its manifest."""
@@ -314,12 +330,18 @@ class PPOTrainer:
         save_atomic(payload, self.checkpoint_path)
         write_json(self.checkpoint_path.with_suffix(".json"), self._manifest(p))
 
-    def _finish(self, s: _Session) -> PPOResult:
-        """``policy.pt`` (the policy, its frozen normalisation and the critic) and ``policy.json``."""
-        p = s.progress
-        s.tick()
+    def _policy_file(self, s: _Session) -> dict:
+        """What ``policy.pt`` holds: the policy, its frozen normalisation and the critic."""
         payload = policy_payload(s.learner.actor, vecnorm_state_dict(s.env), self.cfg, self.spec)
         payload["value"] = s.learner.value.state_dict()
+        return payload
+
+    def _finish(self, s: _Session) -> PPOResult:
+        """``policy.pt`` and ``policy.json``: the best evaluated policy (:data:`SELECTION_RULE`),
+        or the last iterate when the run evaluates nothing."""
+        p = s.progress
+        s.tick()
+        payload = torch.load(self.best_path, weights_only=True) if p.best is not None else self._policy_file(s)
         save_atomic(payload, self.out_dir / "policy.pt")
         write_json(self.out_dir / "policy.json", self._manifest(p) | {"evals": p.evals})
         r = s.result
@@ -363,5 +385,7 @@ class PPOTrainer:
             "iterations": p.iteration,
             "wall_time_s": round(p.wall, 1),
             "torch_threads": torch.get_num_threads(),
-            "metrics": p.evals[-1] if p.evals else {},
+            "selection": {"rule": SELECTION_RULE, "evaluations": len(p.evals), **(p.best or {"frames": p.frames})},
+            # the evaluation of the kept policy
+            "metrics": next((e for e in p.evals if p.best and e["frames"] == p.best["frames"]), {}),
         }
