@@ -45,6 +45,7 @@ from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.rl.policy import load_policy
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
 
@@ -80,11 +81,15 @@ def main() -> None:
         verify(args)
         return
     if args.resummarize is not None:
+        hold_for_command(*args.resummarize, what="ablation results", hint="wait for the run writing it to finish")
         for path in args.resummarize:
             resummarize(path, commit)
         return
     results_dir = args.results or Path("runs/quick/results" if args.quick else "results")
     fig_dir = args.figures or Path("runs/quick/figures" if args.quick else "docs/figures")
+    # each sweep's results file stands for its figures too (named after the sweep)
+    hold_for_command(*(results_dir / f"ablation_{name}.json" for name in args.sweeps), what="ablation results",
+                     hint="wait for it to finish, or choose another --results")
 
     def checkpoint(kind: str, regime: str, given: list[Path] | None) -> Path:
         if given:

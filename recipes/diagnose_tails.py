@@ -34,6 +34,7 @@ from quadwind_trl.evaluation.diagnosis import (OUT_OF_RANGE_Z, SCALAR_INDICATORS
                                                step_diagnostics)
 from quadwind_trl.manifest import (CHECKPOINT_DIR, command_line, git_commit, platform_info, repo_relative, save_atomic,
                                    write_json)
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEPS
 from quadwind_trl.rl.policy import load_policy
 
@@ -83,6 +84,7 @@ def main() -> None:
     parser.add_argument("--figures", type=Path, default=Path("docs/figures"))
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
+    hold_for_command(args.out, what="tail diagnosis", hint="wait for it to finish, or choose another --out")
     torch.set_num_threads(args.threads)
     commit = git_commit()
     actor, payload = load_policy(args.policy)

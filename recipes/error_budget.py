@@ -28,6 +28,7 @@ from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
 
 
@@ -46,6 +47,9 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
+    suffix = "" if args.sensors == "rtk" else f"_{args.sensors}"
+    out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}{suffix}.json"
+    hold_for_command(out, what="error budget", hint="wait for it to finish, or choose another --results")
     regime = SWEEP_REGIME[args.sweep]
     policy = args.policy or CHECKPOINT_DIR / f"policy_{regime}.pt"
     estimator = load_estimator(regime, args.estimator)
@@ -58,8 +62,6 @@ def main() -> None:
                           winds=tuple(args.winds), with_policy=not args.pd_only)
     budget.update(sweep=args.sweep, sensors=args.sensors, command=command_line(sys.argv), git_commit=git_commit(), platform=platform_info(),
                   policy=repo_relative(policy), wall_time_s=time.perf_counter() - start)
-    suffix = "" if args.sensors == "rtk" else f"_{args.sensors}"
-    out = (args.results or Path("runs/quick/results" if args.quick else "results")) / f"error_budget_{args.sweep}{suffix}.json"
     write_json(out, budget)
     for line in summary_lines(budget, args.sweep, args.sensors):
         print(line)

@@ -41,6 +41,7 @@ from quadwind_trl.evaluation.estimation_figures import estimation_figures
 from quadwind_trl.evaluation.estimation_run import run_estimation
 from quadwind_trl.evaluation.estimation_tables import estimation_markdown, replace_section
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, repo_relative
+from quadwind_trl.outputs import hold_for_command
 
 
 def main() -> None:
@@ -68,6 +69,9 @@ def main() -> None:
     fig_dir = Path(args.fig_dir)
     fig_dir.mkdir(parents=True, exist_ok=True)
     json_path = Path(args.json) if args.json else Path("results") / f"estimation_{regime}.json"
+    # the section file holds both regimes' sections: one writer at a time rewrites it
+    hold_for_command(json_path, args.md, *([ckpt] if args.update_checkpoint else []), what="estimator evaluation output",
+                     hint="wait for it to finish, or choose another --json / --md")
     t_start = time.perf_counter()
 
     try:

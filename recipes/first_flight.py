@@ -30,6 +30,7 @@ from quadwind_trl.estimator import load_estimator
 from quadwind_trl.evaluation.figures import trace_episode
 from quadwind_trl.evaluation.first_flight import FirstFlight, fly_first_flight, summarize_first_flight
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, repo_relative, write_json
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import HORIZONTAL_RL
 
 POLICY = CHECKPOINT_DIR / "policy_horizontal.pt"
@@ -46,6 +47,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/quick/first_flight"))
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
+    hold_for_command(args.out, what="first flight folder", hint="wait for it to finish, or choose another --out")
     torch.set_num_threads(args.threads)
     try:
         flight = FirstFlight(episodes=args.episodes, pattern_s=args.seconds, wind_m_s=args.wind, intensity=args.intensity)

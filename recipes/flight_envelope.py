@@ -27,6 +27,7 @@ from quadwind_trl.evaluation.envelope import (
     hold_check, pattern_speed, sweep_cells, sweep_table,
 )
 from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import (
     HORIZONTAL_DATASET, HORIZONTAL_RL, SWEEP_REGIME, SWEEPS, VERTICAL_DATASET, VERTICAL_RL,
 )
@@ -46,8 +47,11 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=25.0, help="length of each steady-wind hover (s)")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args()
+    hold_for_command(args.results, args.figure, what="flight envelope output",
+                     hint="wait for it to finish, or choose another --results / --figure")
     torch.set_num_threads(args.threads)
     start = time.perf_counter()
+    commit = git_commit()  # before this run writes its (tracked) outputs
     cfg = EnvConfig()
 
     validation = {}
@@ -90,7 +94,7 @@ def main() -> None:
     envelope_figure(rows, env, env.tilt_limited_m_s, args.figure,
                     marks=tuple((o["wind_speed_m_s"], o["demand"], f"{o['label']}, I = {o['intensity']:g}, shear {o['shear_alpha']:g}")
                                  for o in observed))
-    payload = {"command": command_line(sys.argv), "git_commit": git_commit(), "platform": platform_info(),
+    payload = {"command": command_line(sys.argv), "git_commit": commit, "platform": platform_info(),
                "config": config_to_dict(cfg), "gust_sigmas": GUST_SIGMAS, "envelope": validation["momentum"]["envelope"],
                "validation": validation, "sweep_cells": rows, "designs": designs, "edge_wind_speed": edges,
                "observed": observed,

@@ -27,6 +27,7 @@ from quadwind_trl.config import SENSOR_PRESETS, EnvConfig, config_to_dict, with_
 from quadwind_trl.envs import QuadWindEnv
 from quadwind_trl.evaluation.tracking import fly_sweep, sweep_setup, tracking_tables
 from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.quick import SWEEP_QUICK
 from quadwind_trl.regimes import SWEEPS
 
@@ -40,6 +41,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--compile", action="store_true", help="torch.compile the simulator step")
     args = parser.parse_args()
+    hold_for_command(args.out, what="PD baseline results", hint="wait for it to finish, or choose another --out")
     torch.set_num_threads(args.threads)
 
     cfg = with_sensor_preset(EnvConfig(), args.sensors)

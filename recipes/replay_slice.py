@@ -23,6 +23,7 @@ import torch
 
 from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, compare_records, replay, replay_verdict
 from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEPS
 
 def main() -> None:
@@ -38,6 +39,8 @@ def main() -> None:
     parser.add_argument("--eager", action="store_true",
                         help="fly the policies on the eager simulator step (default: the step each trained on)")
     args = parser.parse_args()
+    if args.out is not None:
+        hold_for_command(args.out, what="replay record", hint="wait for it to finish, or choose another --out")
     torch.set_num_threads(args.threads)
     start, stop = (int(x) for x in args.episodes.split(":"))
     if args.compare is not None:  # fly exactly what the record flew

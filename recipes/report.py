@@ -14,6 +14,7 @@ from pathlib import Path
 
 from quadwind_trl.evaluation.figures import learning_curves
 from quadwind_trl.evaluation.report import build_report, policy_runs
+from quadwind_trl.outputs import hold_for_command
 
 PREAMBLE = """# Results: ours beside the paper's
 
@@ -33,6 +34,8 @@ def main() -> None:
                              "and their logs, which redraw figures/learning_curves.png beside --out")
     parser.add_argument("--toy", action="store_true", help="the --quick run's page: says so first, no paper columns")
     args = parser.parse_args()
+    # the page and its learning-curves figure beside it
+    hold_for_command(args.out, what="report", hint="wait for it to finish, or choose another --out")
     manifests, runs = policy_runs(args.runs, args.results / "policies")
     if runs:
         learning_curves(runs, args.out.parent / "figures" / "learning_curves.png")

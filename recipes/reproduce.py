@@ -32,7 +32,8 @@ from functools import partial
 from pathlib import Path
 from typing import Callable
 
-from quadwind_trl.manifest import git_commit, write_json
+from quadwind_trl.manifest import git_commit, repo_relative, write_json
+from quadwind_trl.outputs import hold_for_command
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
@@ -144,10 +145,17 @@ def keep_policy(regime: str, kind: str, seed: int) -> None:
 
 
 def median_seed(regime: str, kind: str) -> int:
-    """The seed in the middle of the seeds by its policy's xy RMSE reduction against PD on the
-    regime's own evaluation sweep (the seeds' ablations: 225 / 144 paired episodes)."""
-    score = {seed: json.loads((SEED_RESULTS / f"seed{seed}" / f"ablation_{regime}.json").read_text())["rmse_xy"][kind]["improvement"]
-             for seed in SEEDS}
+    """The seed in the middle of the seeds by its kept policy's validation score (its manifest's
+    ``selection``: the rule training kept it by, on the regime's validation sweep). The test
+    sweeps choose nothing, the shipped seed included."""
+    score = {}
+    for seed in SEEDS:
+        path = kept_policy(regime, kind, seed).with_suffix(".json")
+        selection = json.loads(path.read_text()).get("selection", {})
+        if "validation_score" not in selection:
+            raise ValueError(f"{repo_relative(path)} has no validation score (trained before the validation sweep): "
+                             "retrain it to ship by validation")
+        score[seed] = selection["validation_score"]
     return sorted(score, key=score.get)[len(SEEDS) // 2]
 
 
@@ -188,6 +196,9 @@ def main() -> None:
         if name not in names:
             parser.error(f"unknown stage {name!r}; stages: {', '.join(names)}")
     times = (args.out.resolve() if args.quick else ROOT / "results") / "pipeline_times.json"
+    # one reproduction per record: each stage also locks its own output
+    hold_for_command(times, what="reproduction record",
+                     hint="wait for that reproduction to finish" + (", or choose another --out" if args.quick else ""))
     start = time.perf_counter()
     for stage in plan:
         if args.only is not None and stage.name not in args.only:

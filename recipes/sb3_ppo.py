@@ -19,6 +19,7 @@ import gymnasium as gym
 import torch
 
 from quadwind_trl.gym import ENV_IDS  # importing the module registers the env ids
+from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.quick import QuickFlights
 from quadwind_trl.regimes import regime_config
 
@@ -41,6 +42,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/sb3_ppo"), help="where the SB3 model is saved")
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args()
+    hold_for_command(args.out, what="SB3 run", hint="wait for it to finish, or choose another --out")
     try:
         from stable_baselines3 import PPO
     except ImportError:

@@ -103,16 +103,17 @@ def test_demand_is_pattern_speed_plus_profile_plus_gusts():
 
 
 def test_sweep_cells_and_the_edge_by_hand():
-    """The horizontal sweep's cells at 100 m, shear 0.20 / 0.25; the sustained edge where
-    10 + U 10^0.2 reaches the envelope."""
+    """The horizontal sweep's cells at 100 m, at the median and top shear of its range; the
+    sustained edge where 10 + U 10^median reaches the envelope."""
     cfg, env = EnvConfig(), flight_envelope()
+    low, high = HORIZONTAL_RL.shear_alpha
     rows = sweep_cells(HORIZONTAL_SWEEP, "horizontal", cfg, env)
     assert len(rows) == len(HORIZONTAL_SWEEP.wind_speeds) * len(HORIZONTAL_SWEEP.intensities)
     assert sum(r["cases"] for r in rows) == len(HORIZONTAL_SWEEP.wind_speeds) * len(HORIZONTAL_SWEEP.intensities) * HORIZONTAL_SWEEP.seeds
     cell = next(r for r in rows if r["wind_speed_m_s"] == 8.0 and r["intensity"] == 0.25)
-    assert cell["median"]["shear_alpha"] == pytest.approx(0.20) and cell["worst"]["shear_alpha"] == pytest.approx(0.25)
-    assert cell["worst"]["sustained"] == pytest.approx(10.0 + 8.0 * 10**0.25, rel=1e-5)
+    assert cell["median"]["shear_alpha"] == pytest.approx((low + high) / 2) and cell["worst"]["shear_alpha"] == pytest.approx(high)
+    assert cell["worst"]["sustained"] == pytest.approx(10.0 + 8.0 * 10**high, rel=1e-5)
     assert cell["worst"]["margin"] == pytest.approx(env.airspeed_m_s - cell["worst"]["demand"])
     edge = edge_wind_speed(HORIZONTAL_RL, "horizontal", cfg, env, (0.1,))[0]
-    assert edge["sustained"] == pytest.approx((env.airspeed_m_s - 10.0) / 10**0.2, abs=0.011)
+    assert edge["sustained"] == pytest.approx((env.airspeed_m_s - 10.0) / 10 ** ((low + high) / 2), abs=0.011)
     assert edge["I=0.1"] < edge["sustained"]

@@ -9,6 +9,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -56,9 +58,9 @@ def test_quick_reproduce_runs_every_stage(tmp_path):
 
 
 def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_path, monkeypatch):
-    """Per regime and policy kind the seed in the middle by its own sweep's xy RMSE reduction is
-    shipped (policy and manifest), and the wind-aware median seed's ablations and figures become
-    the headline ones (the OOD sweep follows the horizontal seed: same policy)."""
+    """Per regime and policy kind the seed in the middle by its kept policy's validation score is
+    shipped (policy and manifest), never by a test sweep, and the wind-aware median seed's
+    ablations and figures become the headline ones (the OOD sweep follows the horizontal seed)."""
     import importlib.util
 
     from quadwind_trl.evaluation.figures import ABLATION_FIGURES
@@ -70,14 +72,21 @@ def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_pat
     for name, path in (("ROOT", tmp_path), ("CHECKPOINTS", tmp_path / "checkpoints"),
                        ("SEED_POLICIES", tmp_path / "policies"), ("SEED_RESULTS", tmp_path / "seeds")):
         monkeypatch.setattr(reproduce, name, path)
-    # xy RMSE reduction (%) of each seed's policies on the regime's own sweep
-    scores = {("horizontal", "aware"): (40.0, 50.0, 30.0), ("horizontal", "trained_blind"): (1.0, 3.0, 2.0),
-              ("vertical", "aware"): (10.0, 20.0, 30.0), ("vertical", "trained_blind"): (5.0, -5.0, 0.0)}
+    # validation score (m, lower is better) of each seed's kept policy
+
+    scores = {("horizontal", "aware"): (1.0, 0.5, 1.5), ("horizontal", "trained_blind"): (3.0, 1.0, 2.0),
+              ("vertical", "aware"): (3.0, 2.0, 1.0), ("vertical", "trained_blind"): (1.0, 3.0, 2.0)}
+
+    def decoy(validation: tuple[float, ...], seed: int) -> float:
+        """A test-sweep xy improvement (%) whose median seed is the one after the validation median."""
+        median = sorted(range(3), key=validation.__getitem__)[1]
+        return {median: 10.0, (median + 1) % 3: 50.0, (median + 2) % 3: 90.0}[seed]
+
     for seed in reproduce.SEEDS:
         folder = tmp_path / "seeds" / f"seed{seed}"
         (folder / "figures").mkdir(parents=True)
         for sweep, regime in (("horizontal", "horizontal"), ("vertical", "vertical"), ("ood", "horizontal")):
-            block = {kind: {"improvement": scores[regime, kind][seed]} for kind in reproduce.POLICY_KINDS}
+            block = {kind: {"improvement": decoy(scores[regime, kind], seed)} for kind in reproduce.POLICY_KINDS}
             (folder / f"ablation_{sweep}.json").write_text(json.dumps({"rmse_xy": block, "seed": seed}))
             panels, trace = ABLATION_FIGURES[sweep]
             for figure in [name for _, name in panels] + ([trace[-1]] if trace else []):
@@ -86,8 +95,9 @@ def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_pat
             for kind in reproduce.POLICY_KINDS:
                 kept = reproduce.kept_policy(regime, kind, seed)
                 kept.parent.mkdir(parents=True, exist_ok=True)
-                for suffix in (".pt", ".json"):
-                    kept.with_suffix(suffix).write_text(f"{regime} {kind} seed {seed}")
+                kept.with_suffix(".pt").write_text(f"{regime} {kind} seed {seed}")
+                kept.with_suffix(".json").write_text(json.dumps(
+                    {"seed": seed, "selection": {"validation_score": scores[regime, kind][seed]}}))
     (tmp_path / "results").mkdir()
     (tmp_path / "docs" / "figures").mkdir(parents=True)
     reproduce.ship_median_seeds()
@@ -95,8 +105,12 @@ def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_pat
                "policy_vertical_trained_blind": 2}
     for name, seed in shipped.items():
         regime, kind = name.split("_", 2)[1], "trained_blind" if "blind" in name else "aware"
-        for suffix in (".pt", ".json"):
-            assert (tmp_path / "checkpoints" / f"{name}{suffix}").read_text() == f"{regime} {kind} seed {seed}", name
+        assert (tmp_path / "checkpoints" / f"{name}.pt").read_text() == f"{regime} {kind} seed {seed}", name
+        assert json.loads((tmp_path / "checkpoints" / f"{name}.json").read_text())["seed"] == seed, name
+    kept = reproduce.kept_policy("horizontal", "aware", 1).with_suffix(".json")
+    kept.write_text(json.dumps({"seed": 1}))  # trained before the validation sweep: not shippable
+    with pytest.raises(ValueError, match="no validation score"):
+        reproduce.median_seed("horizontal", "aware")
     for sweep, seed in (("horizontal", 0), ("vertical", 1), ("ood", 0)):
         assert json.loads((tmp_path / "results" / f"ablation_{sweep}.json").read_text())["seed"] == seed
         panels, _ = ABLATION_FIGURES[sweep]

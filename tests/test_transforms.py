@@ -18,7 +18,7 @@ from quadwind_trl.estimator.features import make_extractor
 from quadwind_trl.envs import QuadWindEnv, ScenarioSampler, make_scenarios
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.sensors import pack_channels
-from quadwind_trl.estimator.ema import EMAConfig, ema_scan
+from quadwind_trl.estimator.ema import EMAConfig, ema_init, ema_scan, ema_step
 from quadwind_trl.keys import MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_DIM, WIND_INDICES
 from quadwind_trl.estimator import untrained_estimator
 from quadwind_trl.rl.envs import make_env, vecnorm, wind_estimate
@@ -411,3 +411,89 @@ def test_policy_ema_tau_s_falls_back_to_the_estimator_checkpoint(bundle):
         make_env("horizontal", bundle, 1, ema_tau=3.0, compile_step=False)
     with pytest.raises(TypeError, match=r"not a WindEstimator \(missing \['window'"):
         WindEstimate(type("NoWindow", (), {"schema": "horizontal", "channels": (), "predict": None, "to": None})())
+
+
+def queried_estimates(estimator, features: torch.Tensor, stride: int, log_dt_s: float) -> torch.Tensor:
+    """The reference ``[N, ceil(T / stride), 2]``: at every ``stride``-th tick from the first, the
+    estimator on that tick's windows of all rows at once (as the transform batches same-phase
+    rows), EMA-filtered with ``dt`` = ``stride`` log intervals."""
+    n, t_len, _ = features.shape
+    state, cfg, out = ema_init(n, 2), EMAConfig(dt_s=log_dt_s * stride), []
+    for t in range(0, t_len, stride):
+        window = features[:, torch.arange(t - estimator.window + 1, t + 1).clamp_min(0)]  # left-padded
+        state, value = ema_step(state, estimator.predict(window), cfg)
+        out.append(value)
+    return torch.stack(out, 1)
+
+
+@torch.no_grad()
+def test_estimate_every_s_queries_every_kth_tick_and_holds_in_between(bundle):
+    """The default (every log tick) is what every recorded policy flew: ``wind_hat`` at each tick
+    is bitwise the EMA (dt = 0.1 s) of the estimator on that tick's windows. Every 0.5 s: the same
+    ring (fed every tick), the estimator a fifth as often, the EMA stepped with dt = 0.5 s at
+    ticks 0, 5, 10, ... and its value held in between."""
+    cfg = short_config()
+    n = 3
+    every_tick = WindEstimate(bundle, config=cfg)
+    fifth = WindEstimate(bundle, config=cfg, every_s=0.5, out_key="wind_hat_5")
+    assert (every_tick.stride, fifth.stride) == (1, 5) and every_tick.ema_config.dt_s == cfg.timing.log_dt_s
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[n]), Compose(every_tick, fifth, LatestFeatures(every_tick)))
+    log = fly(env, scenarios(n), log_keys=("features", "wind_hat", "wind_hat_5")).log  # one row per 10 Hz tick
+    ticks = log.batch_size[1]
+    assert bool(log["valid"].all())
+    assert torch.equal(log["wind_hat"], queried_estimates(bundle, log["features"], 1, cfg.timing.log_dt_s))
+    held = log["wind_hat_5"]
+    assert torch.equal(held[:, ::5], queried_estimates(bundle, log["features"], 5, cfg.timing.log_dt_s))
+    assert torch.equal(held, held[:, ::5].repeat_interleave(5, dim=1)[:, :ticks])
+    assert every_tick.estimator_calls == n * ticks and fifth.estimator_calls == n * math.ceil(ticks / 5)
+
+
+@torch.no_grad()
+def test_each_row_queries_on_its_own_episode_phase(bundle):
+    """A row restarted between ticks queries at its reset tick and every 5th tick of its new
+    episode after it; between its queries its ``wind_hat`` does not move at any control step."""
+    cfg = short_config()
+    west = WindEstimate(bundle, config=cfg, every_s=0.5)
+    env = TransformedEnv(QuadWindEnv(cfg, batch_size=[3]), west)
+    td = env.reset(scenario=scenarios(3))
+    queries = 3  # every row's reset tick
+    for step in range(300):
+        if step == 25:  # restart row 1 at a non-tick step: its ticks now fall 5 control steps off the others'
+            td["_reset"] = torch.tensor([[False], [True], [False]])
+            td = env.reset(td, scenario=scenarios(3, traj=("cloverleaf_h",), start_step=0))
+            queries += 1
+            assert west.ring.count[1] == 1 and west.estimator_calls == queries
+            torch.testing.assert_close(td["wind_hat"][1:2], bundle.predict(west.ring.windows(torch.tensor([1]))))
+        before = td["wind_hat"].clone()
+        count = west.ring.count.clone()
+        td["action"] = torch.zeros(3, 4)
+        td = env.step(td)["next"]
+        due = (west.ring.count != count) & ((west.ring.count - 1) % 5 == 0)
+        queries += int(due.sum())
+        moved = (td["wind_hat"] != before).any(-1)
+        assert torch.equal(moved, due), step  # a query moves the EMA, nothing else does
+    assert west.estimator_calls == queries
+    assert west.ring.count.tolist() == [31, 28, 31]
+
+
+def test_estimate_every_s_is_validated_recorded_and_defaults_for_old_policies(bundle):
+    """A whole multiple of the log interval, named in the error; policies record it in their env
+    spec, and those saved before it existed fly with every tick (0.1 s)."""
+    from quadwind_trl.manifest import CHECKPOINT_DIR
+    from quadwind_trl.rl.envs import RLEnvSpec, policy_estimate_every_s
+    from quadwind_trl.rl.policy import spec_to_dict
+    from quadwind_trl.validation import load_checkpoint
+
+    for bad in (0, -0.5, 0.15, 0.05, float("nan"), "0.5"):
+        with pytest.raises(ValueError, match=r"RLEnvSpec\.estimate_every_s=.* allowed: a positive whole multiple of the log interval 0\.1 s"):
+            make_env("horizontal", bundle, 1, estimate_every_s=bad, compile_step=False)
+    with pytest.raises(ValueError, match=r"WindEstimate\.every_s=0\.25 s"):
+        WindEstimate(bundle, config=short_config(), every_s=0.25)
+    assert wind_estimate(make_env("horizontal", bundle, 1, config=short_config(), estimate_every_s=1.0,
+                                  compile_step=False)).stride == 10
+    recorded = spec_to_dict(RLEnvSpec(estimate_every_s=0.5))
+    assert policy_estimate_every_s(recorded) == 0.5
+    older = {key: value for key, value in recorded.items() if key != "estimate_every_s"}
+    assert policy_estimate_every_s(older) == 0.1 == RLEnvSpec().estimate_every_s
+    for regime in ("horizontal", "vertical"):  # the shipped policies predate the setting
+        assert policy_estimate_every_s(load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["env_spec"]) == 0.1

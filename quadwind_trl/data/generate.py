@@ -14,7 +14,9 @@ A dataset is one directory::
       manifest.json       regime, seeds, sizes, trajectory names, full EnvConfig and RegimeRanges
                           (deterministic: no timestamps)
       provenance.json     command, git commit, wall time, host threads (differs between runs)
-      COMPLETE            written last: a dataset without it is never loaded
+      COMPLETE            written last, after everything it covers: the size of every file of
+                          data/ and of manifest.json (JSON, deterministic). A dataset without it,
+                          or with a listed file missing or of another size, is never loaded.
 
 Generation writes into ``.<name>.partial`` beside ``DIR`` and renames it into place only when
 everything, ``COMPLETE`` included, is written, so an interrupted run never leaves anything that
@@ -22,8 +24,12 @@ everything, ``COMPLETE`` included, is written, so an interrupted run never leave
 after a chunk's rows are written, ``progress.json`` in the partial directory records them
 (atomically). Interrupted (SIGINT, SIGTERM or an error) after at least one chunk, the partial
 directory stays for ``resume=True`` (``--resume``) to continue from the last committed chunk;
-interrupted before, it is removed. A run without ``resume`` starts over. Same arguments => byte-identical ``data/`` and
-``manifest.json`` (the physics is a function of the scenarios; the scenarios of the seeds).
+interrupted before, it is removed. A run without ``resume`` starts over. Same arguments => byte-identical ``data/``,
+``manifest.json`` and ``COMPLETE`` (the physics is a function of the scenarios; the scenarios of the seeds).
+
+A generation holds :class:`~quadwind_trl.outputs.OutputLock` on ``DIR`` from its first check to the
+rename, so a second run on the same ``DIR`` (a resume included) is refused at once instead of
+racing the first one for the partial directory.
 """
 from __future__ import annotations
 
@@ -43,6 +49,7 @@ import torch
 from tensordict import TensorDict
 
 from ..manifest import git_commit, platform_info, write_json
+from ..outputs import OutputLock
 from ..config import EnvConfig, TrajectoryConfig, config_to_dict
 from ..envs.quad_env import QuadWindEnv
 from ..envs.runner import iter_flights
@@ -203,12 +210,11 @@ def generate_dataset(
     if max_batch < 1:
         raise ValueError(f"max_batch={max_batch} must be >= 1")
     out = Path(out).resolve()
-    if out.exists() and not overwrite:
-        raise FileExistsError(f"{out} exists; pass overwrite=True (--overwrite) to replace it")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = partial_dir(out)
-    with _terminate_as_interrupt():
-        return _generate(out, tmp, spec, max_batch, device, compile_step, resume, progress, command, after_chunk)
+    with OutputLock(out, "dataset", "wait for it to finish, or choose another out (--out)"), _terminate_as_interrupt():
+        if out.exists() and not overwrite:
+            raise FileExistsError(f"{out} exists; pass overwrite=True (--overwrite) to replace it")
+        return _generate(out, partial_dir(out), spec, max_batch, device, compile_step, resume, progress, command, after_chunk)
 
 
 def partial_dir(out: Path) -> Path:
@@ -319,8 +325,8 @@ def _generate(out: Path, tmp: Path, spec: GenerationSpec, max_batch: int, device
         (tmp / "provenance.json").write_text(json.dumps(provenance, indent=1, sort_keys=True) + "\n")
         (tmp / PROGRESS_FILE).unlink()
         del data, rec
+        write_json(tmp / COMPLETE_MARKER, {"files": _covered_files(tmp)})
         _fsync_tree(tmp)
-        (tmp / COMPLETE_MARKER).write_text("ok\n")
         if out.exists():  # overwrite: swap, then delete the old one
             old = out.parent / f".{out.name}.old-{os.getpid()}"
             os.replace(out, old)
@@ -364,16 +370,50 @@ def _fsync_tree(root: Path) -> None:
                 os.fsync(f.fileno())
 
 
-def is_complete(path: str | os.PathLike) -> bool:
+def _covered_files(root: Path) -> dict[str, int]:
+    """What ``COMPLETE`` vouches for: the size of every file of ``data/`` and of ``manifest.json``
+    (sizes, not hashes: checking them costs a directory walk, so every load can afford it;
+    ``provenance.json`` is the run's record, not data)."""
+    files = [p for p in (root / "data").rglob("*") if p.is_file()] + [root / "manifest.json"]
+    return {p.relative_to(root).as_posix(): p.stat().st_size for p in sorted(files)}
+
+
+def dataset_problems(path: str | os.PathLike) -> list[str]:
+    """What keeps ``path`` from being a complete dataset (empty: it is one): no ``COMPLETE``
+    marker, or a file it lists missing or of another size. A marker written before markers
+    listed files (``ok``) vouches for ``manifest.json`` and ``data/meta.json`` being there."""
     path = Path(path)
-    return (path / COMPLETE_MARKER).is_file() and (path / "manifest.json").is_file() and not path.name.startswith(".")
+    marker = path / COMPLETE_MARKER
+    if path.name.startswith("."):
+        return [f"{path.name} is the generator's working directory (an unfinished or replaced dataset)"]
+    if not marker.is_file():
+        return [f"no {COMPLETE_MARKER} marker (missing, interrupted or still being written)"]
+    text = marker.read_text()
+    listed = json.loads(text)["files"] if text.startswith("{") else {"manifest.json": None, "data/meta.json": None}
+    problems = []
+    for name, size in listed.items():
+        file = path / name
+        if not file.is_file():
+            problems.append(f"{name} is missing")
+        elif size is not None and file.stat().st_size != size:
+            problems.append(f"{name} has {file.stat().st_size} bytes, {COMPLETE_MARKER} lists {size}")
+    return problems
+
+
+def is_complete(path: str | os.PathLike) -> bool:
+    return not dataset_problems(path)
 
 
 def load_dataset(path: str | os.PathLike) -> tuple[TensorDict, dict]:
-    """``(data, manifest)`` of a complete dataset; ``data`` is memory-mapped (read lazily)."""
+    """``(data, manifest)`` of a complete dataset; ``data`` is memory-mapped (read lazily). A
+    dataset that is not (:func:`dataset_problems`) raises ``FileNotFoundError`` naming what is
+    missing or wrong."""
     path = Path(path)
-    if not is_complete(path):
-        raise FileNotFoundError(f"{path} is not a complete dataset (no {COMPLETE_MARKER} marker: missing or interrupted)")
+    problems = dataset_problems(path)
+    if problems:
+        shown = "; ".join(problems[:5]) + (f"; and {len(problems) - 5} more" if len(problems) > 5 else "")
+        raise FileNotFoundError(f"{path} is not a complete dataset: {shown}. Generate it again "
+                                "(recipes/generate_flights.py --overwrite, or --resume if it was interrupted)")
     manifest = json.loads((path / "manifest.json").read_text())
     if manifest.get("format_version") != FORMAT_VERSION:
         raise ValueError(f"{path}: dataset format {manifest.get('format_version')}, this code reads {FORMAT_VERSION}")

@@ -19,7 +19,11 @@ Artifacts of a run writing to ``out`` (e.g. ``quadwind_trl/checkpoints/estimator
   epoch. ``resume=True`` continues from it; every epoch reseeds the RNG from ``(seed, epoch)``, so
   an interrupted and resumed run ends with the same weights as an uninterrupted one.
 * TorchRL ``CSVLogger`` scalars under ``log_dir/<exp_name>/scalars/*.csv`` (``exp_name`` unique
-  per run, reused on resume so the curves continue).
+  per run, reused on resume so the curves continue from the resume state's epoch: the rows an
+  interrupted run logged after it are dropped first).
+
+The run holds :class:`~quadwind_trl.outputs.OutputLock` on ``out`` throughout: a second run
+writing the same checkpoint (a resume included) is refused at once.
 
 Budget (measured, see ``docs/estimator.md``): the defaults in :func:`full_config` bound the
 horizontal run at 25 epochs x 80k windows drawn by the balanced sampler.
@@ -33,7 +37,7 @@ import os
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import torch
 from torch import Tensor
@@ -41,6 +45,7 @@ from torch import Tensor
 from ..data.generate import load_dataset
 from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
 from ..manifest import CheckpointParts, git_commit, platform_info, repo_relative, save_atomic
+from ..outputs import OutputLock, truncate_scalar_logs
 from .checkpoint import EstimatorBundle
 from .features import make_extractor
 from .loss import EstimatorLoss, EstimatorLossConfig
@@ -276,6 +281,20 @@ def resume_path(out: str | os.PathLike, log_dir: str | os.PathLike = "runs/estim
     return Path(log_dir) / f"resume-{out.stem}-{hashlib.sha1(str(out).encode()).hexdigest()[:8]}.pt"
 
 
+def _logged_through(state: dict, steps_per_epoch: int) -> Callable[[str], float]:
+    """The last step of each CSV log that a resume ``state`` covers: the per-epoch rows through its
+    epoch, the per-optimiser-step loss through that epoch's last step, and no test rows (the
+    run's end writes them again)."""
+    epoch = state["epoch"]
+
+    def last(name: str) -> float:
+        if name.startswith("test/"):
+            return float("-inf")
+        return (epoch + 1) * steps_per_epoch if name == "train/step_loss" else epoch
+
+    return last
+
+
 @dataclass
 class EstimatorTrainResult:
     """What :func:`train_estimator` returns (``bundle`` is None when stopped early by
@@ -488,18 +507,25 @@ def train_estimator(
 
     ``stop_after_epochs`` ends this call after that many epochs (as an interruption would, the
     resume state stays unfinished; tests use it to check that resuming retraces the run)."""
-    from torchrl.record import CSVLogger
-    from tqdm.auto import tqdm
-
-    wd = ed.windows
     if cfg.regime != ed.regime:
         raise ValueError(f"TrainConfig.regime={cfg.regime!r} but the dataset is {ed.regime!r}")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    state_path = resume_path(out, log_dir)
-    Path(log_dir).mkdir(parents=True, exist_ok=True)
-    state = _resume_state(ed, cfg, out, state_path, resume, overwrite)
+    # one writer per checkpoint: its resume state and its best-so-far model belong to the run too
+    with OutputLock(out, "estimator checkpoint", "wait for it to finish, or choose another out (--out)"):
+        state_path = resume_path(out, log_dir)
+        Path(log_dir).mkdir(parents=True, exist_ok=True)
+        state = _resume_state(ed, cfg, out, state_path, resume, overwrite)
+        return _train(ed, cfg, out, state_path, state, Path(log_dir), exp_name, progress, command, stop_after_epochs)
 
+
+def _train(ed: EstimatorData, cfg: TrainConfig, out: Path, state_path: Path, state: dict | None, log_dir: Path,
+           exp_name: str | None, progress: bool, command: str | None, stop_after_epochs: int | None) -> EstimatorTrainResult:
+    """:func:`train_estimator`'s run, from ``state`` (None: a new run), under its lock."""
+    from torchrl.record import CSVLogger
+    from tqdm.auto import tqdm
+
+    wd = ed.windows
     trainer = _Trainer(wd, cfg)
     run = _Progress()
     if state is not None:
@@ -507,6 +533,7 @@ def train_estimator(
         run = _Progress(state["history"], state["best_val"], state["best_epoch"], state["bad_epochs"],
                         state["epoch"] + 1, state["wall_time_s"], state.get("initial_val"))
         exp_name = state["exp_name"]
+        truncate_scalar_logs(log_dir / exp_name / "scalars", _logged_through(state, trainer.steps_per_epoch))
     if exp_name is None:
         exp_name = f"estimator_{cfg.regime}_{time.strftime('%Y%m%d-%H%M%S')}_{os.getpid()}"
     logger = CSVLogger(exp_name=exp_name, log_dir=str(log_dir))
@@ -563,6 +590,8 @@ def train_estimator(
                 "metrics": {"wall_time_s": wall, "status": "training (test metrics are written at the end)"},
             }
             _make_bundle(trainer.model, wd, cfg.regime, manifest).save(best_path)
+        # logged before the state is saved: a run killed in between logs the epoch again on resume
+        _report_epoch(epoch, row, train, val, n_seen, train_time, improved, logger)
         stop = cfg.patience is not None and run.bad_epochs >= cfg.patience
         save_atomic(
             {
@@ -581,7 +610,6 @@ def train_estimator(
             },
             state_path,
         )
-        _report_epoch(epoch, row, train, val, n_seen, train_time, improved, logger)
         bar.set_postfix(val_rmse=f"{val['per_window_vector_rmse']:.3f}", best=f"{run.best['per_window_vector_rmse']:.3f}@{run.best_epoch}")
         if stop:
             print(f"early stop at epoch {epoch}: no validation improvement for {run.bad_epochs} epochs", flush=True)

@@ -28,7 +28,7 @@ from ..config import EnvConfig, config_from_dict
 from ..envs.runner import FlightResults, NestedKey
 from ..envs.trajectories import trajectory_ids, trajectory_name
 from ..estimator import EstimatorBundle
-from ..rl.envs import make_env, policy_ema_tau_s
+from ..rl.envs import make_env, policy_ema_tau_s, policy_estimate_every_s
 from ..rl.paired import fly_paired, improvement
 from ..rl.policy import load_policy
 from .grouping import summarize
@@ -67,6 +67,7 @@ def fly_controllers(
     chunks: range | None = None,
     blind_policy_path: str | Path | None = None,
     log_keys: Sequence[NestedKey] = TRACE_KEYS,
+    estimate_every_s: float | None = None,
 ) -> dict[str, FlightResults]:
     """Fly ``scenarios`` with each controller (:func:`~quadwind_trl.rl.paired.fly_paired`);
     results per controller, in scenario order.
@@ -78,7 +79,9 @@ def fly_controllers(
     ``blind_policy_path`` is the trained-blind policy (needed for ``trained_blind``); it must have
     trained on the same env config, so that every controller flies the same worlds. ``log_keys``:
     the entries of the 10 Hz flight record (default :data:`TRACE_KEYS`; any entry of the
-    transformed env's step output, e.g. ``"observation"``, the policy's normalised input)."""
+    transformed env's step output, e.g. ``"observation"``, the policy's normalised input).
+    ``estimate_every_s``: seconds between estimator queries (default: what each policy trained
+    with, :func:`~quadwind_trl.rl.envs.policy_estimate_every_s`)."""
     policies = {"aware": load_policy(policy_path, device=device)}
     if BLIND_TRAINED & set(controllers):
         if blind_policy_path is None:
@@ -105,7 +108,8 @@ def fly_controllers(
         actor, inputs = policies["trained_blind" if name in BLIND_TRAINED else "aware"]
         env = make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
                        device=device, config=config, vecnorm_state=inputs["vecnorm"],
-                       ema_tau_s=policy_ema_tau_s(inputs["env_spec"], estimator), compile_step=compile_step)
+                       ema_tau_s=policy_ema_tau_s(inputs["env_spec"], estimator), compile_step=compile_step,
+                       estimate_every_s=policy_estimate_every_s(inputs["env_spec"]) if estimate_every_s is None else estimate_every_s)
         return env, None if name == "pd" else actor
 
     flights = {name: flight(name) for name in controllers}

@@ -46,6 +46,10 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--ema-tau-s", type=float, default=None,
                    help="time constant (s) of the EMA on the wind estimate the policy sees, 0: unfiltered (default: the "
                         f"one chosen on the estimator's validation flights, recorded in its manifest; else {DEFAULT_TAU_S})")
+    p.add_argument("--estimate-every-s", type=float, default=RLEnvSpec.estimate_every_s,
+                   help="seconds between a sub-env's wind-estimator queries, a whole multiple of the 0.1 s log interval; "
+                        "the estimate is held in between and the EMA keeps its time constant (default "
+                        f"{RLEnvSpec.estimate_every_s:g}: every tick; docs/rl.md, 'How often the estimator runs')")
     p.add_argument("--eager", action="store_true",
                    help="fly the simulator eagerly instead of through torch.compile (the default: compiled; --quick is eager)")
     p.add_argument("--wind-input", default="estimate", choices=["estimate", "zero", "truth"],
@@ -83,9 +87,13 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     """Build the env spec, PPO config, evaluation set and (vertical) curriculum from ``args``;
     train; print and return the final manifest."""
     torch.set_num_threads(args.threads)
-    spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
-                     estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                     config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager)
+    try:
+        spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
+                         estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
+                         config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager,
+                         estimate_every_s=args.estimate_every_s)
+    except ValueError as err:  # a bad setting (e.g. --estimate-every-s 0.25): the message names the allowed values
+        raise SystemExit(f"error: {err}") from None
     if args.quick:
         spec, cfg, changes = quick_setup(regime, spec)
         print("--quick changes from the full run:")
@@ -110,7 +118,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         except (FileNotFoundError, ValueError) as err:
             raise SystemExit(f"error: {err}") from None
     spec = replace(spec, ema_tau_s=args.ema_tau_s if args.ema_tau_s is not None else validated_tau_s(bundle))
-    print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s", flush=True)
+    print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)
     scenarios = validation_scenarios(regime, episodes) if episodes != 0 else None

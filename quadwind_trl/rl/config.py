@@ -58,7 +58,10 @@ class PPOConfig:
     desync: bool = True  # truncate each row's first episode at a random length (EpisodeControl)
     eval_every_frames: int = 500_000  # 0: only at the end
     checkpoint_every_frames: int = 250_000
-    threads: int | None = 1
+    threads: int | None = 1  # torch intra-op threads of the run (None: torch's default)
+    # threads of the PPO update alone (None: ``threads``): collection and update alternate in one
+    # process, so a core that the single-threaded simulator leaves idle can serve the update
+    update_threads: int | None = None
 
     @property
     def frames_per_batch(self) -> int:
@@ -74,7 +77,8 @@ class PPOConfig:
         return self.iterations * self.frames_per_batch
 
     def validate(self) -> "PPOConfig":
-        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames"):
+        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames") + tuple(
+                name for name in ("threads", "update_threads") if getattr(self, name) is not None):
             if getattr(self, name) < 1:
                 raise ValueError(f"PPOConfig.{name}={getattr(self, name)} must be >= 1")
         if self.frames_per_batch % self.minibatch:

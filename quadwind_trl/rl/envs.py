@@ -25,6 +25,10 @@ The wind estimate's post-filter time constant is ``RLEnvSpec.ema_tau_s`` (defaul
 estimator's validation flights (:func:`validated_tau_s`), and trained policies record theirs in
 their env spec, which is what flying them must use (:func:`policy_ema_tau_s`; policies trained
 before that field existed used the value in their estimator's checkpoint).
+
+How often the estimator runs is ``RLEnvSpec.estimate_every_s`` (default: every 10 Hz log tick,
+0.1 s); the filter's time constant stays in seconds whatever it is. Policies record it in their env
+spec and fly with it (:func:`policy_estimate_every_s`; older policies ran it at every tick).
 """
 from __future__ import annotations
 
@@ -41,6 +45,7 @@ from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
 from ..keys import OBSERVATION_KEY
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
 from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, WindZero
+from ..transforms.wind import estimate_stride
 
 T = TypeVar("T")
 Regime = Literal["horizontal", "vertical"]
@@ -48,6 +53,8 @@ WindInput = Literal["estimate", "zero", "truth"]
 WIND_INPUTS = ("estimate", "zero", "truth")
 DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
+# s: the estimator at every 10 Hz log tick (what every policy trained before the setting existed saw)
+DEFAULT_ESTIMATE_EVERY_S = 0.1
 
 
 def check_regime(regime: str) -> None:
@@ -80,6 +87,9 @@ class RLEnvSpec:
     # replay uses the setting the run recorded.
     compile_step: bool = True
     ema_tau_s: float = DEFAULT_TAU_S  # s, the wind estimate's EMA time constant (0: raw estimate)
+    # s between a row's estimator queries (a whole multiple of the log interval; the estimate is
+    # held in between): a slow EMA barely moves in 0.1 s, and the estimator is most of collection
+    estimate_every_s: float = DEFAULT_ESTIMATE_EVERY_S
 
     def __post_init__(self):
         check_regime(self.regime)
@@ -89,6 +99,7 @@ class RLEnvSpec:
             raise ValueError(f"RLEnvSpec.num_envs={self.num_envs}; allowed: >= 1")
         if not self.ema_tau_s >= 0:
             raise ValueError(f"RLEnvSpec.ema_tau_s={self.ema_tau_s!r} s; allowed: >= 0 (0: unfiltered)")
+        estimate_stride(self.estimate_every_s, self.env_config.timing.log_dt_s, "RLEnvSpec.estimate_every_s")
         if self.desync_steps < 0:
             raise ValueError(f"RLEnvSpec.desync_steps={self.desync_steps}; allowed: >= 0")
 
@@ -127,7 +138,8 @@ def build_env(
     source = "truth" if spec.wind_input == "truth" else "estimate"
     transforms = [
         EpisodeControl(spec.desync_steps, seed=spec.seed, align=cfg.timing.decisions_per_log),
-        WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg),
+        WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg,
+                     every_s=spec.estimate_every_s),
         PolicyObservation(cfg),
         RunningObsNorm(in_keys=[OBSERVATION_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True),
     ]
@@ -180,6 +192,13 @@ def policy_ema_tau_s(env_spec: dict, estimator: WindEstimator | None) -> float:
         return float(env_spec["ema_tau_s"])
     recorded = getattr(estimator, "ema_tau_s", None)
     return DEFAULT_TAU_S if recorded is None else float(recorded)
+
+
+def policy_estimate_every_s(env_spec: dict) -> float:
+    """Seconds between estimator queries a policy trained with: its checkpoint's
+    ``env_spec["estimate_every_s"]``; policies saved before the spec recorded it ran the estimator
+    at every log tick."""
+    return float(env_spec.get("estimate_every_s", DEFAULT_ESTIMATE_EVERY_S))
 
 
 def find_transform(env: TransformedEnv, cls: type[T]) -> T:
@@ -247,6 +266,7 @@ __all__ = [
     "build_env",
     "make_env",
     "policy_ema_tau_s",
+    "policy_estimate_every_s",
     "validated_tau_s",
     "find_transform",
     "vecnorm",

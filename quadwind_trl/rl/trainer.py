@@ -21,6 +21,7 @@ from torchrl.record.loggers import Logger
 
 from ..envs.runner import FlightResults
 from ..manifest import command_line, git_commit, platform_info, repo_relative, save_atomic, write_json
+from ..outputs import OutputLock, truncate_scalar_logs
 from ..keys import OBSERVATION_CHANNELS
 from .config import Curriculum, PPOConfig
 from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm_state_dict, wind_estimate
@@ -123,6 +124,7 @@ class PPOTrainer:
         command: str | None = None,
         estimator_bundle=None,
         on_iteration: Callable[[dict], None] | None = None,
+        stop_when: Callable[[list[dict]], bool] | None = None,
     ):
         self.cfg = cfg.validate()
         if env_spec.num_envs != cfg.num_envs:
@@ -136,6 +138,7 @@ class PPOTrainer:
         self.command = command if command is not None else command_line(sys.argv)
         self.factory = EnvFactory(env_spec, bundle=estimator_bundle)
         self.on_iteration = on_iteration
+        self.stop_when = stop_when  # called with the evaluations after each one: True ends the run there
 
     @property
     def checkpoint_path(self) -> Path:
@@ -152,10 +155,12 @@ class PPOTrainer:
         ``resume``; writes the files listed above and returns the run's :class:`PPOResult`."""
         if self.cfg.threads:
             torch.set_num_threads(self.cfg.threads)
-        session = self._start(self._check_resume(resume))
-        if session.progress.frames < self.cfg.planned_frames:
-            self._collect_and_update(session)
-        return self._finish(session)
+        # one writer per run directory: a second run on it (a resume included) is refused at once
+        with OutputLock(self.out_dir, "training run", "wait for it to finish, or choose another out_dir (--out)"):
+            session = self._start(self._check_resume(resume))
+            if session.progress.frames < self.cfg.planned_frames:
+                self._collect_and_update(session)
+            return self._finish(session)
 
     def _collect_and_update(self, s: _Session) -> None:
         from torchrl.collectors import Collector
@@ -176,10 +181,14 @@ class PPOTrainer:
                 bar.set_postfix(r=f"{metrics['reward_mean']:.3f}", ret=f"{metrics.get('episode_return', float('nan')):.0f}")
                 if self.on_iteration is not None:
                     self.on_iteration(metrics)
+                stop = False
                 if self._evaluation_due(s):
                     self._evaluate(s)
-                if self._checkpoint_due(s):
+                    stop = self.stop_when is not None and self.stop_when(s.progress.evals)
+                if stop or self._checkpoint_due(s):
                     self._checkpoint(s)
+                if stop:
+                    break
                 t_collect0 = time.perf_counter()
         finally:
             bar.close()
@@ -230,14 +239,19 @@ class PPOTrainer:
         if self.eval_scenarios is not None:
             eval_env = self.factory(num_envs=self.eval_scenarios.batch_size[0], seed=spec.seed + 1, desync_steps=0)
         result = PPOResult(self.out_dir, progress.frames, progress.iteration, evals=list(progress.evals))
-        return _Session(learner, env, eval_env, progress, self._make_logger(), result,
+        return _Session(learner, env, eval_env, progress, self._make_logger(progress.frames), result,
                         wall0=time.perf_counter() - progress.wall)
 
     def _iteration(self, s: _Session, data: TensorDictBase, gen: torch.Generator, collect_s: float) -> dict:
         """Update on one collected batch; advance the counters and the curriculum; log."""
         t0 = time.perf_counter()
         stats = self._episode_stats(data)
-        metrics = s.learner.update(data, gen)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(self.cfg.update_threads or threads)
+        try:
+            metrics = s.learner.update(data, gen)
+        finally:
+            torch.set_num_threads(threads)
         update_s = time.perf_counter() - t0
         p = s.progress
         p.iteration += 1
@@ -348,7 +362,9 @@ class PPOTrainer:
         r.frames, r.iterations, r.wall_time_s, r.evals = p.frames, p.iteration, p.wall, list(p.evals)
         return r
 
-    def _make_logger(self) -> Logger:
+    def _make_logger(self, frames: int) -> Logger:
+        """The run's logger; CSV logs keep only the rows up to ``frames`` (the checkpoint's, 0 for a
+        new run): what an interrupted session logged after its last checkpoint is logged again."""
         from torchrl.record import CSVLogger
 
         log_dir = str(self.out_dir / "logs")
@@ -361,6 +377,7 @@ class PPOTrainer:
                 raise ImportError(f"logger='tensorboard' needs TensorBoard: pip install -e '.[tensorboard]' ({err})") from None
         if self.logger_kind != "csv":
             raise ValueError(f"logger={self.logger_kind!r}; allowed: 'csv', 'tensorboard'")
+        truncate_scalar_logs(Path(log_dir) / "ppo" / "scalars", lambda name: frames)
         return CSVLogger(exp_name="ppo", log_dir=log_dir)
 
     @staticmethod

@@ -3,15 +3,17 @@
 
 ``WindEstimate(estimator)`` takes any :class:`~quadwind_trl.estimator.base.WindEstimator` (the
 trained ``EstimatorBundle``, or a user's own class) and keeps a
-:class:`~quadwind_trl.estimator.ring.FeatureRing` of its feature schema per sub-env; at every
-10 Hz log tick of a row it queries the estimator on that row's ``estimator.window``-sample feature
-window (left-padded by repeating the episode's first sample until it is full), filters the
-(north, east) output with the spike-gated EMA (:mod:`quadwind_trl.estimator.ema`; ``tau`` from
-``ema``, default ``EMAConfig()``; ``dt`` = the log interval) and holds the filtered value until the
-row's next tick. It writes ``wind_hat`` ``[2]`` = (north, east) m/s.
+:class:`~quadwind_trl.estimator.ring.FeatureRing` of its feature schema per sub-env, fed at every
+10 Hz log tick of a row. Every ``every_s`` seconds of a row's episode (default: every log tick; a
+whole number ``stride`` of log intervals, counted from the row's reset, whose tick is always a
+query) it queries the estimator on that row's ``estimator.window``-sample feature window
+(left-padded by repeating the episode's first sample until it is full), filters the (north, east)
+output with the spike-gated EMA (:mod:`quadwind_trl.estimator.ema`; ``tau`` from ``ema``, default
+``EMAConfig()``; ``dt`` = ``every_s``, so the filter's time constants stay in seconds) and holds the
+filtered value until the row's next query. It writes ``wind_hat`` ``[2]`` = (north, east) m/s.
 
-Only rows that tick are evaluated (gathered, then scattered back), so the estimator's cost is one
-window per row per 10 control steps whatever the rows' phases.
+Only rows whose query is due are evaluated (gathered, then scattered back), so the estimator's cost
+is one window per row per ``10 x stride`` control steps whatever the rows' phases.
 
 The estimator is frozen (``eval()``, ``requires_grad_(False)``) and held as a plain attribute of
 the transform, not a registered sub-module: ``transform.parameters()`` and ``state_dict()`` do not
@@ -26,8 +28,10 @@ unfiltered.
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import replace
+from numbers import Real
 from typing import Literal, Sequence
 
 import torch
@@ -45,6 +49,18 @@ from ..keys import MEAN_WIND_KEY, OBSERVATION_KEY, WIND_INDICES, WIND_KEY
 from .reset import reset_mask
 
 
+def estimate_stride(every_s: float, log_dt_s: float, name: str = "WindEstimate.every_s") -> int:
+    """Log ticks per estimator query for a query every ``every_s`` seconds; a ``ValueError``
+    naming ``name`` unless ``every_s`` is a positive whole multiple of the log interval ``log_dt_s``
+    (the ring is fed at log ticks, so a query can only happen on one)."""
+    valid = isinstance(every_s, Real) and not isinstance(every_s, bool) and math.isfinite(every_s) and every_s > 0
+    stride = round(every_s / log_dt_s) if valid else 0
+    if stride < 1 or not math.isclose(stride * log_dt_s, every_s, rel_tol=1e-9):
+        raise ValueError(f"{name}={every_s!r} s; allowed: a positive whole multiple of the log interval "
+                         f"{log_dt_s:g} s ({log_dt_s:g}, {2 * log_dt_s:g}, ..., {5 * log_dt_s:g}, {10 * log_dt_s:g}, ...)")
+    return stride
+
+
 class WindEstimate(Transform):
     """Writes ``wind_hat`` ``[2]`` (north, east, m/s): the frozen estimator's EMA-filtered output
     (``source="estimate"``) or the true mean wind (``source="truth"``).
@@ -52,11 +68,13 @@ class WindEstimate(Transform):
     Args:
         estimator: a :class:`~quadwind_trl.estimator.base.WindEstimator` (ignored, may be None,
             for ``source="truth"``).
-        ema: the post-filter; default ``EMAConfig()``; its ``dt_s`` is set to the config's log
-            interval. ``EMAConfig(tau_s=0)`` passes the raw output through.
+        ema: the post-filter; default ``EMAConfig()``; its ``dt_s`` is set to the query interval.
+            ``EMAConfig(tau_s=0)`` passes the raw output through.
         source: ``"estimate"`` or ``"truth"``.
         config: the env config (vehicle mass for the features, log rate).
         out_key: the entry written (default ``"wind_hat"``).
+        every_s: seconds between a row's estimator queries, a positive whole multiple of the log
+            interval (default: the log interval, every tick). Ignored for ``source="truth"``.
     """
 
     def __init__(
@@ -67,11 +85,13 @@ class WindEstimate(Transform):
         source: Literal["estimate", "truth"] = "estimate",
         config: EnvConfig | None = None,
         out_key: str = WIND_KEY,
+        every_s: float | None = None,
     ):
         if source not in ("estimate", "truth"):
             raise ValueError(f"WindEstimate.source={source!r}; allowed: 'estimate', 'truth'")
         cfg = config or EnvConfig()
         log_dt = cfg.timing.log_dt_s
+        self.stride = 1 if every_s is None else estimate_stride(every_s, log_dt)
         self.source = source
         if source == "estimate":
             if estimator is None:
@@ -93,7 +113,8 @@ class WindEstimate(Transform):
         self.out_key = out_key
         # a plain attribute (not a sub-module): no parameters, no state_dict entries
         self.estimator = estimator
-        self.ema_config = replace(ema if ema is not None else EMAConfig(), dt_s=log_dt)
+        # one filter step per query: dt = the query interval keeps tau (in seconds) the same
+        self.ema_config = replace(ema if ema is not None else EMAConfig(), dt_s=log_dt * self.stride)
         self.ring = FeatureRing(extractor, estimator.window, cfg.timing.log_every_control_steps) if extractor else None
         self.ema_state: dict[str, Tensor] | None = None
         self.value: Tensor | None = None  # [N, 2] held output
@@ -109,9 +130,17 @@ class WindEstimate(Transform):
             self.value = torch.zeros(n, 2, device=device)
             self.estimator = self.estimator.to(device)
 
+    def _due(self, idx: Tensor) -> Tensor:
+        """The rows of ``idx`` (just fed a sample) whose query is due: every ``stride``-th sample of
+        each row's own episode, its first (the reset tick) included."""
+        if self.stride == 1:
+            return idx
+        return idx[(self.ring.count[idx] - 1) % self.stride == 0]
+
     @torch.no_grad()
     def _tick(self, record: TensorDictBase, mask: Tensor) -> None:
-        idx = self.ring.ingest(record, mask)
+        # every tick feeds the ring (the window is the last 60 samples at 10 Hz); only due rows query
+        idx = self._due(self.ring.ingest(record, mask))
         if idx.numel() == 0:
             return
         t0 = time.perf_counter()
