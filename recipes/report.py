@@ -21,6 +21,15 @@ PREAMBLE = """# Results: ours beside the paper's
 Every number here was produced by a recipe in this repository; each section names its command
 and commit. Regenerate this page with `python recipes/report.py` after rerunning any stage
 (`python recipes/reproduce.py` runs them all). Machine: 2 CPU cores, no GPU.
+
+**The horizontal wind design changed at commit 4f617f5** (issue 25): the horizontal policy and
+the horizontal and OOD sweeps now draw the shear exponent from the paper's RL range 0.08-0.15
+instead of 0.15-0.25, which had put the strong-wind corner beyond the vehicle's flight envelope
+([simulator.md](simulator.md#flight-envelope)). The PD baseline sections are on the new design.
+Sections whose commit predates 4f617f5 (the horizontal and OOD ablations, the seeds, the
+decomposition, the error budget) were flown on the earlier design and replay at their own
+commits; they are regenerated with policies trained on the new design (issue 25). The vertical
+design did not change.
 """
 
 
