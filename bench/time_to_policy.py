@@ -6,8 +6,8 @@ what each training lever buys, as a ratio measured in the same invocation.
     python bench/time_to_policy.py --skip-levers --budget-s 1800 --eval-every 98304
 
 Phase 1, the levers. Each setting trains ``--lever-batches`` batches after one warm-up batch
-(which pays the simulator's compilation) in the same process, one after the other, and the bench
-prints the mean collection, estimator and update seconds per batch. The reference is the shipped
+(which pays the simulator's compilation), each in a fresh process as a user's run is, one after
+the other, and the bench prints the mean collection, estimator and update seconds per batch. The reference is the shipped
 recipe (64 envs x 256 steps, estimator every 0.1 s, 10 epochs of 512-sample minibatches, 1
 thread); each lever changes one thing:
 
@@ -32,6 +32,8 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import replace
@@ -62,24 +64,36 @@ def reference_spec(seed: int):
     return RLEnvSpec(REGIME, seed=seed, ema_tau_s=validated_tau_s(bundle)), bundle
 
 
-def measure_levers(batches: int, seed: int) -> dict[str, dict[str, float]]:
-    """Seconds per batch (collection, the estimator within it, update) of each lever setting."""
+def lever_batch_seconds(name: str, batches: int, seed: int) -> dict[str, float]:
+    """Seconds per batch (collection, the estimator within it, update) of one lever setting, in
+    this process (run it in a fresh one: see :func:`measure_levers`)."""
     spec, bundle = reference_spec(seed)
+    cfg_changes, spec_changes = LEVERS[name]
+    cfg = replace(PPOConfig(seed=seed, eval_every_frames=0, checkpoint_every_frames=10**12), **cfg_changes)
+    cfg = replace(cfg, total_frames=(batches + 1) * cfg.frames_per_batch)
+    with tempfile.TemporaryDirectory() as tmp:
+        history = PPOTrainer(replace(spec, **spec_changes), cfg, Path(tmp) / "run", progress=False,
+                             estimator_bundle=bundle).train().history
+    timed = history[1:]  # the first batch warms up (and compiles the step)
+    per = {k: sum(h[k] for h in timed) / len(timed) for k in ("collect_s", "update_s")}
+    per["estimator_s"] = (history[-1]["estimator_s"] - history[0]["estimator_s"]) / len(timed)  # cumulative in the log
+    per["batch_s"] = per["collect_s"] + per["update_s"]
+    per["load_1min"] = load_1min()
+    return per
+
+
+def measure_levers(batches: int, seed: int) -> dict[str, dict[str, float]]:
+    """Each lever setting in a fresh process, as a user's training run is: in one process,
+    torch.compile's cache of the simulator step fills up after a few envs and later envs step
+    eagerly (measured here: collection 6x slower after the fifth run's evaluation)."""
     out = {}
-    for name, (cfg_changes, spec_changes) in LEVERS.items():
-        cfg = replace(PPOConfig(seed=seed, eval_every_frames=0, checkpoint_every_frames=10**12), **cfg_changes)
-        cfg = replace(cfg, total_frames=(batches + 1) * cfg.frames_per_batch)
-        with tempfile.TemporaryDirectory() as tmp:
-            history = PPOTrainer(replace(spec, **spec_changes), cfg, Path(tmp) / "run", progress=False,
-                                 estimator_bundle=bundle).train().history
-        timed = history[1:]  # the first batch warms up (and compiles the step)
-        per = {k: sum(h[k] for h in timed) / len(timed) for k in ("collect_s", "update_s")}
-        per["estimator_s"] = (history[-1]["estimator_s"] - history[0]["estimator_s"]) / len(timed)  # cumulative in the log
-        per["batch_s"] = per["collect_s"] + per["update_s"]
-        per["load_1min"] = load_1min()
+    for name in LEVERS:
+        proc = subprocess.run([sys.executable, __file__, "--lever", name, "--lever-batches", str(batches), "--seed", str(seed)],
+                              capture_output=True, text=True, check=True)
+        per = json.loads(proc.stdout.strip().splitlines()[-1])
         out[name] = per
         print(f"lever {name!r}: collect {per['collect_s']:.2f} s (estimator {per['estimator_s']:.2f} s), "
-              f"update {per['update_s']:.2f} s, batch {per['batch_s']:.2f} s per {cfg.frames_per_batch} frames; "
+              f"update {per['update_s']:.2f} s, batch {per['batch_s']:.2f} s per {PPOConfig().frames_per_batch} frames; "
               f"load {per['load_1min']:.2f}", flush=True)
     ref = out["reference"]
     for name, per in out.items():
@@ -130,8 +144,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--skip-levers", action="store_true")
-    parser.add_argument("--lever-batches", type=int, default=2, help="timed batches per lever setting")
+    parser.add_argument("--lever-batches", type=int, default=3, help="timed batches per lever setting")
     parser.add_argument("--skip-run", action="store_true")
+    parser.add_argument("--lever", choices=list(LEVERS), help=argparse.SUPPRESS)  # one lever, in this process (internal)
     parser.add_argument("--target", type=float, default=40.0, help="xy RMSE improvement over PD on validation, %%")
     parser.add_argument("--budget-s", type=float, default=2400.0, help="wall-time limit of the run, s")
     parser.add_argument("--max-frames", type=int, default=1_500_000)
@@ -143,6 +158,9 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="run directory (default: a new temporary folder)")
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.lever:
+        print(json.dumps(lever_batch_seconds(args.lever, args.lever_batches, args.seed)))
+        return
     print(machine_line(threads=1), flush=True)
     if not args.skip_levers:
         measure_levers(args.lever_batches, args.seed)
