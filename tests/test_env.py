@@ -499,3 +499,14 @@ def test_parallel_workers_fly_the_rows_of_one_env():
         assert (flown[0] == flown[1]).all()
     finally:
         workers.close()
+
+
+def test_a_compiled_env_lets_dynamo_keep_one_step_per_env():
+    """Dynamo keeps one compiled step per env instance; past its recompile limit it would step every
+    later env eagerly without a word, so a compiled env raises the limit (building one compiles nothing)."""
+    import torch._dynamo
+
+    from quadwind_trl.envs.quad_env import COMPILED_ENVS_PER_PROCESS
+
+    QuadWindEnv(EnvConfig(), batch_size=[2], compile_step=True)
+    assert torch._dynamo.config.recompile_limit >= COMPILED_ENVS_PER_PROCESS

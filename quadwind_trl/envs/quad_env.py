@@ -76,6 +76,21 @@ def _leaf_keys(td: TensorDict) -> list[NestedKey]:
     return sorted(td.keys(True, True), key=lambda k: (k,) if isinstance(k, str) else k)
 
 
+# Dynamo caches one compiled step per env instance (its guards hold the instance), and after
+# ``recompile_limit`` entries (torch's default: 8) it runs that code eagerly for every later
+# instance, silently: an ablation of three sweeps x five controllers, or a benchmark training
+# several runs in one process, then stepped its later envs ~6x slower (bench/time_to_policy.py).
+COMPILED_ENVS_PER_PROCESS = 64
+
+
+def _allow_compiled_envs() -> None:
+    """Raise dynamo's per-function recompile limit to :data:`COMPILED_ENVS_PER_PROCESS` (never lower it)."""
+    import torch._dynamo
+
+    cfg = torch._dynamo.config
+    cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_ENVS_PER_PROCESS)
+
+
 class QuadWindEnv(EnvBase):
     """A batch of quadrotors flying reference trajectories through wind and turbulence.
 
@@ -146,6 +161,8 @@ class QuadWindEnv(EnvBase):
             if missing:
                 raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
         self.task = task if task is not None else TrackingTask(self.config)
+        if compile_step:
+            _allow_compiled_envs()
         self._advance = torch.compile(self._held_control_step, dynamic=False) if compile_step else self._held_control_step
         self.params: TensorDict | None = None
         self.state: TensorDict | None = None
