@@ -14,6 +14,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
+@pytest.mark.long
 def test_quick_reproduce_runs_every_stage(tmp_path):
     out = tmp_path / "quick"
     run = subprocess.run(
