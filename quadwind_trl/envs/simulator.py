@@ -111,13 +111,15 @@ class QuadSimulator:
         )
         control = TensorDict(ff=torch.zeros(n, 4, device=self.device), cmd=torch.zeros(n, 4, device=self.device),
                              batch_size=[n])
-        state = TensorDict(step=step, finite=torch.ones(n, 1, dtype=torch.bool, device=self.device), body=body,
-                           wind=wind_state, sensors=sensor_state, control=control, batch_size=[n])
+        state = TensorDict(step=step, body=body, wind=wind_state, sensors=sensor_state, control=control, batch_size=[n])
         state = self._observe_instant(params, state, first=True)
+        # the keys in the order :meth:`step` returns them: a compiled step is guarded on the order
+        # of its input's keys, and a start in another order cost every env a second compilation
+        state["finite"] = torch.ones(n, 1, dtype=torch.bool, device=self.device)
         # an airborne start has been flying under the PD: report that as the last command
         control = state["control"]
         control["cmd"] = torch.where(airborne & (step >= self.arm_step).unsqueeze(-1), control["pd_wrench"], 0.0)
-        return params, state
+        return params, state.apply(Tensor.contiguous)  # and with the step's (contiguous) strides
 
     def reset(
         self, params: TensorDict | None, state: TensorDict | None, scenario: TensorDict, rows: Tensor | None = None
@@ -155,18 +157,19 @@ class QuadSimulator:
         n = state.batch_size
         new = TensorDict(
             step=state["step"] + 1,
-            body=TensorDict(specific_force=specific_force, **body._asdict(), batch_size=n),
+            body=TensorDict(**body._asdict(), specific_force=specific_force, batch_size=n),  # initial()'s key order
             wind=state["wind"],
             sensors=state["sensors"],
-            nav=state["nav"],
             control=TensorDict(ff=ff, cmd=cmd, batch_size=n),
+            nav=state["nav"],
             batch_size=n,
         )
         new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, 1) if imu_sub else None)
         b = new["body"]
         finite = torch.stack([torch.isfinite(b[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
         new["finite"] = finite
-        return _sanitize(new, ~finite)
+        # contiguous leaves, as initial() returns: a compiled step is guarded on its input's strides
+        return _sanitize(new, ~finite).apply(Tensor.contiguous)
 
     # --- what the vehicle and the world look like at one instant --------------------------------
 
