@@ -172,7 +172,10 @@ def _run_recipe(script: str, tmp_path: Path, *extra: str) -> dict:
 
 
 def test_quick_vertical_curriculum_recipe(tmp_path):
-    m = _run_recipe("ppo_vertical_curriculum.py", tmp_path, "--sensing", "true_state")
+    # one batch, no evaluation: what is checked is the saved env; tests/test_reproduce.py flies the
+    # recipe's whole --quick run (four batches and an evaluation)
+    m = _run_recipe("ppo_vertical_curriculum.py", tmp_path, "--sensing", "true_state", "--total-frames", "256",
+                    "--eval-episodes", "0")
     assert m["env_spec"]["env_config"]["reward"]["w_z"] == 0.5
     assert m["env_spec"]["env_config"]["controller"]["feedback"] == "truth"  # --sensing reaches the saved env
     assert m["curriculum"]["stages"][-1] == ["vertical_climb", "spiral_ascent", "figure8_3d", "lawnmower_scan"]
