@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -58,7 +57,7 @@ LEVERS = {  # name -> (PPOConfig changes, RLEnvSpec changes)
 }
 
 
-def reference_spec(seed: int):
+def reference_spec(seed: int) -> tuple[RLEnvSpec, object]:
     """The shipped recipe's env spec (the estimator's validated EMA tau) and the loaded estimator."""
     bundle = load_estimator(REGIME)
     return RLEnvSpec(REGIME, seed=seed, ema_tau_s=validated_tau_s(bundle)), bundle
@@ -123,9 +122,9 @@ def run_to_target(args: argparse.Namespace) -> list[dict]:
         print("curve " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items()), flush=True)
         return row["xy_pct"] >= args.target or row["wall_s"] >= args.budget_s
 
-    out = Path(args.out or tempfile.mkdtemp(prefix="time_to_policy_"))
-    if out.exists():
-        shutil.rmtree(out)
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="time_to_policy_")) / "run"
+    if out.exists():  # never delete a folder the user named: a run needs a fresh one
+        raise SystemExit(f"error: --out {out} exists; choose a new folder")
     PPOTrainer(spec, cfg, out, eval_scenarios=validation_scenarios(REGIME), progress=False, estimator_bundle=bundle,
                stop_when=stop_when).train()
     reached = next((r for r in curve if r["xy_pct"] >= args.target), None)
