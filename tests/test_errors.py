@@ -91,6 +91,8 @@ BAD_CONFIGS = [
     ("PPO minibatch 0", lambda: PPOConfig(minibatch=0).validate(), ValueError, ["minibatch=0", ">= 1"]),
     ("PPO minibatch not dividing", lambda: PPOConfig(minibatch=7).validate(), ValueError, ["minibatch=7", "multiple"]),
     ("PPO activation", lambda: PPOConfig(activation="gelu").validate(), ValueError, ["activation='gelu'", "'tanh'"]),
+    ("PPO lr schedule", lambda: PPOConfig(lr_schedule="cosine").validate(), ValueError, ["lr_schedule='cosine'", "'linear'"]),
+    ("PPO lr 0", lambda: PPOConfig(lr=0.0).validate(), ValueError, ["lr=0.0", "> 0"]),
     ("PPO init scale 0", lambda: PPOConfig(init_scale=0.0).validate(), ValueError, ["init_scale=0.0", "> 0"]),
     ("curriculum, starts per stage", lambda: Curriculum(stages=(("hover",), ("racetrack_h",)), starts=(0.0,)), ValueError,
      ["2 stages", "1 starts", "one start fraction per stage"]),

@@ -85,6 +85,36 @@ def test_trainer_keeps_the_policy_of_its_best_validation_evaluation(tmp_path):
     assert (best == 2) == all(torch.equal(kept["policy"][k], last["policy"][k]) for k in ref["policy"])
 
 
+class Interrupt(Exception):
+    pass
+
+
+def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
+    """The decay is a function of frames, set before every update: a run interrupted after its
+    second update and resumed logs and uses the same rates as an uninterrupted one."""
+    spec = hover_spec(duration_s=1.0)
+    cfg = PPOConfig(total_frames=4 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
+                    lr=1e-3, lr_schedule="linear", eval_every_frames=0, checkpoint_every_frames=1)
+    planned = [1e-3, 7.5e-4, 5e-4, 2.5e-4]  # one per update; 0 is reached only as the run ends
+    assert [cfg.lr_at(f) for f in (0, 128, 256, 384, 512)] == pytest.approx(planned + [0.0])
+    assert PPOConfig().lr_at(10**6) == PPOConfig().lr  # the paper's constant rate
+
+    def interrupt_after_second(metrics: dict) -> None:
+        if metrics["frames"] == 256:
+            raise Interrupt
+
+    runs = {"full": tmp_path / "full", "resumed": tmp_path / "resumed"}
+    PPOTrainer(spec, cfg, runs["full"], progress=False).train()
+    with pytest.raises(Interrupt):
+        PPOTrainer(spec, cfg, runs["resumed"], progress=False, on_iteration=interrupt_after_second).train()
+    PPOTrainer(spec, cfg, runs["resumed"], progress=False).train(resume=True)
+    for name, run in runs.items():
+        rows = (run / "logs" / "ppo" / "scalars" / "train" / "lr.csv").read_text().split()
+        assert [float(r.split(",")[1]) for r in rows] == pytest.approx(planned), name
+        optim = torch.load(run / "checkpoints" / "latest.pt", weights_only=True)["optimizer"]
+        assert optim["param_groups"][0]["lr"] == pytest.approx(planned[-1]), name
+
+
 def test_validation_score_and_scenarios():
     from quadwind_trl.regimes import SWEEPS, VALIDATION_SWEEPS
     from quadwind_trl.rl.paired import validation_score

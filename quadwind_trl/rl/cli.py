@@ -17,7 +17,7 @@ from ..config import SENSING, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..quick import PPO_QUICK
 from ..regimes import regime_config
-from .config import PPOConfig, vertical_curriculum
+from .config import LR_SCHEDULES, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, validated_tau_s
 from .paired import validation_scenarios
 from .trainer import PPOTrainer
@@ -38,6 +38,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--num-envs", type=int, default=None, help="parallel sub-envs (default 64)")
     p.add_argument("--steps-per-env", type=int, default=None,
                    help="steps per sub-env per batch (default 256: 64 x 256 = 16384 = the paper's 8 envs x 2048)")
+    p.add_argument("--lr-schedule", default=None, choices=list(LR_SCHEDULES),
+                   help="learning rate over the run: constant 3e-4 (the paper, default) or linear decay to 0 "
+                        "(a recipe candidate, docs/rl.md 'Choosing the training recipe')")
     p.add_argument("--out", default=None, help=f"run directory (default runs/ppo_{regime}[_quick])")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
@@ -103,7 +106,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         cfg = PPOConfig(eval_every_frames=DEFAULT_EVAL_EVERY[regime])
     overrides = {"seed": args.seed, "threads": args.threads}
     for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
-                      ("eval_every", "eval_every_frames")):
+                      ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule")):
         if getattr(args, arg) is not None:
             overrides[name] = getattr(args, arg)
     cfg = replace(cfg, **overrides).validate()

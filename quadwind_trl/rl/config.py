@@ -8,7 +8,9 @@ setting                     paper                  here
 actor / critic              MLP 2 x 256            separate MLPs 2 x 256, Tanh (SB3's default)
 action distribution         (SB3: diag. Gaussian,  TanhNormal on [-1, 1]^4 (exact log-probs of the
                             clipped to bounds)     bounded action), state-independent scale
-learning rate               3e-4                   3e-4 (Adam, eps 1e-5 as SB3)
+learning rate               3e-4                   3e-4 (Adam, eps 1e-5 as SB3); lr_schedule
+                                                   "linear" decays it to 0 over the run (a
+                                                   recipe candidate, docs/rl.md)
 samples per batch           2048 steps x n_envs    num_envs x steps_per_env = 64 x 256 = 16384
                                                    (= 8 envs x 2048 steps)
 minibatch / epochs          512 / 10               512 / 10 (32 minibatches per epoch)
@@ -33,6 +35,9 @@ from typing import Sequence
 from torch import nn
 
 ACTIVATIONS = {"tanh": nn.Tanh, "elu": nn.ELU, "relu": nn.ReLU}
+# "constant": the paper's fixed rate; "linear": from ``lr`` at the first update to 0 at the end of
+# the planned run (CleanRL's anneal_lr; Huang et al. 2022, "The 37 implementation details of PPO")
+LR_SCHEDULES = ("constant", "linear")
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,7 @@ class PPOConfig:
     epochs: int = 10  # paper
     minibatch: int = 512  # paper
     lr: float = 3e-4  # paper
+    lr_schedule: str = "constant"  # paper; one of LR_SCHEDULES
     clip_epsilon: float = 0.2  # paper
     entropy_coeff: float = 0.005  # paper
     critic_coeff: float = 0.5  # paper
@@ -76,6 +82,12 @@ class PPOConfig:
         """Frames of the whole run: whole batches, at least ``total_frames``."""
         return self.iterations * self.frames_per_batch
 
+    def lr_at(self, frames: int) -> float:
+        """The learning rate of the update that follows ``frames`` collected frames."""
+        if self.lr_schedule == "linear":
+            return self.lr * max(0.0, 1.0 - frames / self.planned_frames)
+        return self.lr
+
     def validate(self) -> "PPOConfig":
         for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames") + tuple(
                 name for name in ("threads", "update_threads") if getattr(self, name) is not None):
@@ -87,6 +99,10 @@ class PPOConfig:
             )
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"PPOConfig.activation={self.activation!r}; allowed: {sorted(ACTIVATIONS)}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"PPOConfig.lr_schedule={self.lr_schedule!r}; allowed: {list(LR_SCHEDULES)}")
+        if not 0 < self.lr:
+            raise ValueError(f"PPOConfig.lr={self.lr} must be > 0")
         if not 0 < self.init_scale:
             raise ValueError(f"PPOConfig.init_scale={self.init_scale} must be > 0")
         return self

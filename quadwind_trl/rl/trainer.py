@@ -248,16 +248,17 @@ class PPOTrainer:
         stats = self._episode_stats(data)
         threads = torch.get_num_threads()
         torch.set_num_threads(self.cfg.update_threads or threads)
+        p = s.progress
+        lr = self.cfg.lr_at(p.frames)
         try:
-            metrics = s.learner.update(data, gen)
+            metrics = s.learner.update(data, gen, lr=lr)
         finally:
             torch.set_num_threads(threads)
         update_s = time.perf_counter() - t0
-        p = s.progress
         p.iteration += 1
         p.frames += data.numel()
         metrics.update(stats)
-        metrics.update(frames=p.frames, collect_s=collect_s, update_s=update_s, fps=data.numel() / max(collect_s, 1e-9),
+        metrics.update(frames=p.frames, lr=lr, collect_s=collect_s, update_s=update_s, fps=data.numel() / max(collect_s, 1e-9),
                        action_scale=action_scale(s.learner.actor))
         if self.curriculum is not None:
             metrics["curriculum_stage"] = p.stage

@@ -47,11 +47,13 @@ class PPOUpdate(CheckpointParts):
         if any(id(p) in frozen for p in self.params):
             raise RuntimeError("estimator parameters found among the optimised parameters")
 
-    def update(self, data: TensorDictBase, generator: torch.Generator) -> dict[str, float]:
+    def update(self, data: TensorDictBase, generator: torch.Generator, lr: float | None = None) -> dict[str, float]:
         """GAE on ``data`` ([N, T], time last, before flattening, as SB3), then ``cfg.epochs``
-        passes of shuffled minibatches; returns each loss term and the grad norm averaged over
-        the minibatches."""
+        passes of shuffled minibatches at learning rate ``lr`` (default ``cfg.lr``); returns each
+        loss term and the grad norm averaged over the minibatches."""
         cfg = self.cfg
+        for group in self.optim.param_groups:  # set every update, so a resumed run follows the schedule
+            group["lr"] = cfg.lr if lr is None else lr
         batch = data.select(*BATCH_KEYS)
         with torch.no_grad():
             self.gae(batch)
