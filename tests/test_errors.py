@@ -92,6 +92,8 @@ BAD_CONFIGS = [
     ("PPO minibatch not dividing", lambda: PPOConfig(minibatch=7).validate(), ValueError, ["minibatch=7", "multiple"]),
     ("PPO activation", lambda: PPOConfig(activation="gelu").validate(), ValueError, ["activation='gelu'", "'tanh'"]),
     ("PPO lr schedule", lambda: PPOConfig(lr_schedule="cosine").validate(), ValueError, ["lr_schedule='cosine'", "'linear'"]),
+    ("PPO reward scaling", lambda: PPOConfig(reward_scaling="popart").validate(), ValueError,
+     ["reward_scaling='popart'", "'return_std'"]),
     ("PPO lr 0", lambda: PPOConfig(lr=0.0).validate(), ValueError, ["lr=0.0", "> 0"]),
     ("PPO init scale 0", lambda: PPOConfig(init_scale=0.0).validate(), ValueError, ["init_scale=0.0", "> 0"]),
     ("curriculum, starts per stage", lambda: Curriculum(stages=(("hover",), ("racetrack_h",)), starts=(0.0,)), ValueError,

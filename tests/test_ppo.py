@@ -275,3 +275,52 @@ def test_quick_flights_shorten_the_config_and_start_airborne():
     assert (quick["start_step"] == -1).all() and torch.equal(quick["altitude_m"], sc["altitude_m"])  # climbs keep their top
     assert PPO_QUICK["horizontal"].ranges(DEFAULT_RANGES["horizontal"]).altitude_m == (10.0, 10.0)
     assert PPO_QUICK["vertical"].ranges(DEFAULT_RANGES["vertical"]) == DEFAULT_RANGES["vertical"]
+
+
+def test_return_scale_divides_rewards_by_the_running_std_of_the_discounted_return():
+    from tensordict import TensorDict
+
+    from quadwind_trl.rl.reward_scale import ReturnScale
+
+    gamma, n, t = 0.9, 3, 5
+    gen = torch.Generator().manual_seed(0)
+    batches = [TensorDict({"next": {"reward": torch.randn(n, t, 1, generator=gen),
+                                    "done": torch.rand(n, t, 1, generator=gen) < 0.3}}, [n, t]) for _ in range(2)]
+    # the reference: a plain loop over sub-envs and steps, carrying each return across batches
+    carried, seen = [0.0] * n, []
+    for batch in batches:
+        for i in range(n):
+            for k in range(t):
+                carried[i] = gamma * carried[i] + float(batch["next", "reward"][i, k])
+                seen.append(carried[i])
+                if batch["next", "done"][i, k]:
+                    carried[i] = 0.0
+    scale = ReturnScale(n, gamma)
+    original = batches[1]["next", "reward"].clone()
+    scale(batches[0])
+    selected = batches[1].select(("next", "reward"), ("next", "done"))
+    scale(selected)
+    assert scale.running_return.tolist() == pytest.approx(carried, abs=1e-6)
+    std = torch.tensor(seen, dtype=torch.float64).std(unbiased=False)
+    assert float(scale.std) == pytest.approx(float(std), rel=1e-6)
+    assert torch.allclose(selected["next", "reward"], (original / std).float().clamp(-10, 10), atol=1e-6)
+    assert torch.equal(batches[1]["next", "reward"], original)  # the collected batch itself is untouched
+    with pytest.raises(ValueError, match="4 sub-envs, expected 3"):
+        scale(TensorDict({"next": {"reward": torch.zeros(4, 2, 1), "done": torch.zeros(4, 2, 1, dtype=torch.bool)}}, [4, 2]))
+
+
+def test_reward_scaling_state_is_checkpointed(tmp_path):
+    spec = hover_spec(duration_s=1.0)
+    cfg = PPOConfig(total_frames=2 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
+                    reward_scaling="return_std", eval_every_frames=0, checkpoint_every_frames=1)
+    out = tmp_path / "run"
+    PPOTrainer(spec, cfg, out, progress=False).train()
+    state = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)["return_scale"]
+    assert float(state["count"]) == 2 * 4 * 32 and float(state["m2"]) > 0
+    rows = (out / "logs" / "ppo" / "scalars" / "train" / "return_std.csv").read_text().split()
+    assert len(rows) == 2 and all(float(r.split(",")[1]) > 0 for r in rows)
+    more = replace(cfg, total_frames=3 * 4 * 32)
+    trainer = PPOTrainer(spec, more, out, progress=False)
+    trainer.train(resume=True)
+    state = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)["return_scale"]
+    assert float(state["count"]) == 3 * 4 * 32  # continued, not restarted

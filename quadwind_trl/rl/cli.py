@@ -17,7 +17,7 @@ from ..config import SENSING, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..quick import PPO_QUICK
 from ..regimes import regime_config
-from .config import LR_SCHEDULES, PPOConfig, vertical_curriculum
+from .config import LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, validated_tau_s
 from .paired import validation_scenarios
 from .trainer import PPOTrainer
@@ -41,6 +41,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--lr-schedule", default=None, choices=list(LR_SCHEDULES),
                    help="learning rate over the run: constant 3e-4 (the paper, default) or linear decay to 0 "
                         "(a recipe candidate, docs/rl.md 'Choosing the training recipe')")
+    p.add_argument("--reward-scaling", default=None, choices=list(REWARD_SCALINGS),
+                   help="none (the paper, default) or return_std: rewards divided by the running std of the discounted "
+                        "return in the PPO update (a recipe candidate; evaluation is unchanged)")
     p.add_argument("--out", default=None, help=f"run directory (default runs/ppo_{regime}[_quick])")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
@@ -106,7 +109,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         cfg = PPOConfig(eval_every_frames=DEFAULT_EVAL_EVERY[regime])
     overrides = {"seed": args.seed, "threads": args.threads}
     for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
-                      ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule")):
+                      ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
+                      ("reward_scaling", "reward_scaling")):
         if getattr(args, arg) is not None:
             overrides[name] = getattr(args, arg)
     cfg = replace(cfg, **overrides).validate()

@@ -11,6 +11,9 @@ action distribution         (SB3: diag. Gaussian,  TanhNormal on [-1, 1]^4 (exac
 learning rate               3e-4                   3e-4 (Adam, eps 1e-5 as SB3); lr_schedule
                                                    "linear" decays it to 0 over the run (a
                                                    recipe candidate, docs/rl.md)
+reward scaling              (not stated)           none; reward_scaling "return_std" divides by
+                                                   the running std of the discounted return
+                                                   (a recipe candidate, rl/reward_scale.py)
 samples per batch           2048 steps x n_envs    num_envs x steps_per_env = 64 x 256 = 16384
                                                    (= 8 envs x 2048 steps)
 minibatch / epochs          512 / 10               512 / 10 (32 minibatches per epoch)
@@ -38,6 +41,9 @@ ACTIVATIONS = {"tanh": nn.Tanh, "elu": nn.ELU, "relu": nn.ReLU}
 # "constant": the paper's fixed rate; "linear": from ``lr`` at the first update to 0 at the end of
 # the planned run (CleanRL's anneal_lr; Huang et al. 2022, "The 37 implementation details of PPO")
 LR_SCHEDULES = ("constant", "linear")
+# "none": the paper's rewards; "return_std": divided by the running std of the discounted return
+# (SB3's VecNormalize(norm_reward=True); rl/reward_scale.py)
+REWARD_SCALINGS = ("none", "return_std")
 
 
 @dataclass(frozen=True)
@@ -49,6 +55,7 @@ class PPOConfig:
     minibatch: int = 512  # paper
     lr: float = 3e-4  # paper
     lr_schedule: str = "constant"  # paper; one of LR_SCHEDULES
+    reward_scaling: str = "none"  # paper; one of REWARD_SCALINGS
     clip_epsilon: float = 0.2  # paper
     entropy_coeff: float = 0.005  # paper
     critic_coeff: float = 0.5  # paper
@@ -101,6 +108,8 @@ class PPOConfig:
             raise ValueError(f"PPOConfig.activation={self.activation!r}; allowed: {sorted(ACTIVATIONS)}")
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"PPOConfig.lr_schedule={self.lr_schedule!r}; allowed: {list(LR_SCHEDULES)}")
+        if self.reward_scaling not in REWARD_SCALINGS:
+            raise ValueError(f"PPOConfig.reward_scaling={self.reward_scaling!r}; allowed: {list(REWARD_SCALINGS)}")
         if not 0 < self.lr:
             raise ValueError(f"PPOConfig.lr={self.lr} must be > 0")
         if not 0 < self.init_scale:

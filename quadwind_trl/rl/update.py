@@ -15,6 +15,7 @@ from torchrl.objectives.value import GAE
 
 from ..manifest import CheckpointParts
 from .config import PPOConfig
+from .reward_scale import ReturnScale
 
 # what the loss reads from a collected batch (the rest, e.g. the flight record, is dropped)
 BATCH_KEYS = ("observation", "action", "action_log_prob", ("next", "observation"), ("next", "reward"),
@@ -40,6 +41,10 @@ class PPOUpdate(CheckpointParts):
         self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=value, average_gae=False)
         self.params = list(self.loss.parameters())
         self.optim = torch.optim.Adam(self.params, lr=cfg.lr, eps=1e-5)  # SB3's Adam eps
+        self.return_scale = None
+        if cfg.reward_scaling == "return_std":
+            self.return_scale = ReturnScale(cfg.num_envs, cfg.gamma).to(next(value.parameters()).device)
+            self.checkpoint_parts = {**self.checkpoint_parts, "return_scale": "return_scale"}
 
     def check_frozen(self, model: nn.Module) -> None:
         """Fail if any parameter of ``model`` (the frozen estimator) would be optimised."""
@@ -56,6 +61,8 @@ class PPOUpdate(CheckpointParts):
             group["lr"] = cfg.lr if lr is None else lr
         batch = data.select(*BATCH_KEYS)
         with torch.no_grad():
+            if self.return_scale is not None:
+                self.return_scale(batch)  # the select's leaves are the collector's: set, not written in place
             self.gae(batch)
         flat = batch.reshape(-1)
         sums: dict[str, torch.Tensor] = {}  # summed on the device: one sync per update
@@ -73,5 +80,8 @@ class PPOUpdate(CheckpointParts):
                         sums[k] = sums.get(k, 0.0) + out[k].detach().mean()
                 sums["grad_norm"] = sums.get("grad_norm", 0.0) + grad_norm.detach()
                 steps += 1
-        return {k: float(v) / steps for k, v in sums.items()}
+        out = {k: float(v) / steps for k, v in sums.items()}
+        if self.return_scale is not None:
+            out["return_std"] = float(self.return_scale.std)
+        return out
 
