@@ -73,6 +73,8 @@ def main() -> None:
     parser.add_argument("--eager", action="store_true",
                         help="fly the simulator eagerly (default: as the policy trained, compiled unless it recorded otherwise)")
     args = parser.parse_args()
+    if args.controllers is not None and "pd" not in args.controllers:
+        parser.error(f"--controllers {' '.join(args.controllers)}: pd is required, every result is paired against it")
     torch.set_num_threads(args.threads)
     # once, before any file is written: rewriting a tracked results file would mark the tree
     # dirty for every file after the first
@@ -125,11 +127,15 @@ def main() -> None:
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
                        estimator_manifest=getattr(estimator, "manifest", {}).get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
-        paths = figures.ablation_figures(name, scenarios, results, summary, fig_dir)
-        aware = summary["rmse_xy"]["aware"]
-        print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; wind-aware vs PD, xy RMSE reduction: "
-              f"{aware['improvement']:.1f} % (95 % CI {aware['ci_low']:.1f} to {aware['ci_high']:.1f}), "
-              f"wins {aware['wins']}/{aware['n']}; figures: {', '.join(str(p) for p in paths)}")
+        if set(figures.FIGURE_CONTROLLERS) <= set(controllers):
+            drawn = ", ".join(str(p) for p in figures.ablation_figures(name, scenarios, results, summary, fig_dir))
+        else:
+            drawn = f"none (they need the controllers {', '.join(figures.FIGURE_CONTROLLERS)})"
+        vs_pd = "; ".join(f"{c} {summary['rmse_xy'][c]['improvement']:.1f} % (95 % CI {summary['rmse_xy'][c]['ci_low']:.1f} to "
+                          f"{summary['rmse_xy'][c]['ci_high']:.1f}), wins {summary['rmse_xy'][c]['wins']}/{summary['rmse_xy'][c]['n']}"
+                          for c in controllers if c != "pd")
+        print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; xy RMSE reduction vs PD: {vs_pd}; "
+              f"figures: {drawn}")
 
 
 def resummarize(path: Path, commit: str) -> None:

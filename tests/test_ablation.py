@@ -108,3 +108,45 @@ def test_seed_table_reports_every_seed_and_the_mean_and_range():
     assert rows["| horizontal xy", "trained blind vs PD"][3] == "+28.3 (+20.0 to +35.0) |"
     assert rows["| horizontal xy", "perception: wind-aware vs trained blind"][3] == "+21.7 (+5.0 to +40.0) |"
     assert not any(sweep != "| horizontal xy" for sweep, _ in rows if sweep != "| sweep")  # no made-up rows
+
+
+
+def _ablation_recipe(tmp_path, *controllers: str):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    return subprocess.run([sys.executable, str(root / "recipes" / "ablation.py"), "--quick", "--sweeps", "ood", "--eager",
+                           "--results", str(tmp_path / "results"), "--figures", str(tmp_path / "figures"),
+                           "--controllers", *controllers], cwd=root, capture_output=True, text=True)  # fmt: skip
+
+
+@pytest.mark.slow  # flies the quick OOD sweep twice in a subprocess (about 40 s of CPU)
+def test_ablation_recipe_with_pd_and_aware_only_writes_its_results_and_names_the_figures_it_cannot_draw(tmp_path):
+    """The figures decompose the gain (PD, the blind residual, the wind-aware one): a run of PD and
+    the wind-aware policy alone still writes its results and says why it draws no figure."""
+    run = _ablation_recipe(tmp_path, "pd", "aware")
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    result = json.loads((tmp_path / "results" / "ablation_ood.json").read_text())
+    assert result["controllers"] == ["pd", "aware"] and "by_wind" not in result["rmse_xy"]
+    assert result["rmse_xy"]["aware"]["n"] == result["episodes"]
+    assert "figures: none (they need the controllers pd, blind, aware)" in run.stdout
+    assert not (tmp_path / "figures").exists() or not any((tmp_path / "figures").iterdir())
+
+
+def test_ablation_recipe_without_pd_is_refused_before_it_flies(tmp_path, monkeypatch, capsys):
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "recipes" / "ablation.py"
+    spec = importlib.util.spec_from_file_location("ablation_recipe", path)
+    recipe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(recipe)
+    monkeypatch.setattr(sys, "argv", [str(path), "--quick", "--sweeps", "ood", "--results", str(tmp_path / "results"),
+                                      "--controllers", "aware", "blind"])
+    with pytest.raises(SystemExit) as refused:
+        recipe.main()
+    assert refused.value.code == 2 and "pd is required, every result is paired against it" in capsys.readouterr().err
+    assert not (tmp_path / "results").exists()

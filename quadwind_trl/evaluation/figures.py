@@ -316,6 +316,8 @@ def pipeline_overview(path: Path) -> Path:
 
 
 # per sweep: the summary panels (drawer, file) and the trace at the strongest wind (drawer, trajectory, file)
+# the controllers every ablation figure draws (the decomposition by wind level needs all three)
+FIGURE_CONTROLLERS = ("pd", "blind", "aware")
 ABLATION_FIGURES = {
     "horizontal": (((scatter_and_improvement, "tracking_horizontal.png"), (decomposition, "decomposition_horizontal.png")),
                    (trace_top_down, "lawnmower_h", "trace_lawnmower.png")),
