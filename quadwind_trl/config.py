@@ -140,6 +140,44 @@ class NavigationConfig:
 
 
 @dataclass(frozen=True)
+class MonitorConfig:
+    """The runtime monitor: PD alone (residual zero, at once) while the vehicle is near its limits,
+    then the residual back through the smoothing and slew limit, from zero (ours; docs/rl.md,
+    "Runtime monitor"). It reads what the autopilot knows: the attitude and position the PD flies on.
+
+    Near the limits is any of: the tilt from vertical beyond ``ControllerConfig.max_tilt_deg``
+    plus ``tilt_margin_deg`` (the residual's torques are not bound by the PD's tilt limit); the
+    total commanded thrust (PD plus residual) at or above ``thrust_fraction`` of the collective the
+    rotors give (at the thrust limit more tilt is less lift: the vehicle sinks); the altitude more
+    than ``height_below_ref_m`` below the reference (None: not checked). The shipped policy's worst
+    episodes reach all three (docs/rl.md, "Where the tail comes from").
+    """
+
+    # deg: over 8 standard deviations of the attitude measurement's noise (0.6 deg), and room for
+    # the PD's own attitude loop to overshoot its command in gusts (PD alone is beyond 35 deg
+    # 2.5-7 % of the time in the worst episodes)
+    tilt_margin_deg: float = 5.0
+    # the diagnosis's "thrust at limit" (evaluation/diagnosis.py, THRUST_SATURATED); hover is 0.4
+    thrust_fraction: float = 0.98
+    # m: above the PD's largest height loss in a typical horizontal-sweep episode (2.2 m on
+    # average) and far below the policy's in its worst ones (37-57 m; PD's 17-18 m)
+    height_below_ref_m: float | None = 5.0
+    # s of PD alone after the last control step near the limits: two time constants of the PD's
+    # slower (horizontal) position loop (1 / 1.75 s^-1 = 0.57 s, from kp 5 and kd 3.5), so what the
+    # limits left behind has mostly decayed, and ten policy decisions, so the gate cannot chatter
+    # at the decision rate
+    hold_s: float = 1.0
+
+    def validate(self) -> None:
+        _check_range("MonitorConfig", "tilt_margin_deg", self.tilt_margin_deg, 0.0, 45.0)
+        # at or below 0.4 (hover thrust over the 2.5 x hover limit) it would trip in hover
+        _check_range("MonitorConfig", "thrust_fraction", self.thrust_fraction, 0.5, 1.0)
+        if self.height_below_ref_m is not None:
+            _check_range("MonitorConfig", "height_below_ref_m", self.height_below_ref_m, 0.5, 100.0)
+        _check_range("MonitorConfig", "hold_s", self.hold_s, 0.0, 60.0)
+
+
+@dataclass(frozen=True)
 class ResidualConfig:
     """The RL residual wrench added to the PD output (paper, Section "Action")."""
 
@@ -148,11 +186,18 @@ class ResidualConfig:
     # N, N m per 10 ms step (20 N/s, 2 N m/s): a full-scale wind correction builds up over about a
     # second, while step-to-step exploration noise cannot kick the airframe (K_R is 10 N m/rad)
     slew_limit_per_step: tuple[float, float, float, float] = (0.2, 0.02, 0.02, 0.02)
+    # None: off, the residual always applies (every result before the monitor, and the default:
+    # a policy is reported with and without it); with_monitor switches it on for evaluation
+    monitor: MonitorConfig | None = None
 
     def validate(self) -> None:
         _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
         if min(self.slew_limit_per_step) <= 0:
             raise ValueError(f"ResidualConfig.slew_limit_per_step={self.slew_limit_per_step!r}; allowed: every entry > 0")
+        if self.monitor is not None:
+            if not isinstance(self.monitor, MonitorConfig):
+                raise TypeError(f"ResidualConfig.monitor={self.monitor!r}: expected a MonitorConfig or None (off)")
+            self.monitor.validate()
 
 
 @dataclass(frozen=True)
@@ -485,6 +530,12 @@ def with_sensing(cfg: EnvConfig, sensing: Sensing) -> EnvConfig:
     raise ValueError(f"sensing={sensing!r}; allowed: {SENSING}")
 
 
+def with_monitor(cfg: EnvConfig, monitor: MonitorConfig | None = MonitorConfig()) -> EnvConfig:
+    """``cfg`` with the runtime monitor switched on (``monitor``; None switches it off): a config
+    override for flying a trained policy with it (``evaluation.ablation.fly_controllers``)."""
+    return replace(cfg, residual=replace(cfg.residual, monitor=monitor))
+
+
 def config_to_dict(cfg) -> dict:
     """A JSON-ready nested dict of a (nested) config dataclass, for manifests."""
     if is_dataclass(cfg):
@@ -520,6 +571,8 @@ def config_from_dict(cls, data: dict):
         if f.name not in data:
             continue
         value, hint = data[f.name], hints[f.name]
+        if value is not None and type(None) in typing.get_args(hint):  # an optional sub-config that is set
+            hint = next(h for h in typing.get_args(hint) if h is not type(None))
         if is_dataclass(hint):
             value = config_from_dict(hint, value)
         elif isinstance(value, list):

@@ -20,6 +20,9 @@ WIND_KEY = "wind_hat"
 OBSERVATION_KEY = "observation"
 #: the true turbulence-free mean wind at the vehicle (ENU), the oracle's source
 MEAN_WIND_KEY = ("truth", "mean_wind")
+#: bool [1]: the runtime monitor held the residual at zero over the last control step (an env
+#: observation entry only while ``ResidualConfig.monitor`` is on)
+MONITOR_KEY = "monitor_active"
 
 YawMode = Literal["ref_relative", "wrapped"]
 

@@ -15,6 +15,7 @@ checks against that lives elsewhere (the trajectory registry) is handed in by th
 from __future__ import annotations
 
 import math
+import types
 import typing
 from dataclasses import dataclass, fields, is_dataclass
 from pathlib import Path
@@ -194,7 +195,8 @@ def _check_value(label: str, key: str, value, hint, name: str) -> None:
         if not isinstance(value, bool):
             raise TypeError(f"{label}={value!r}: expected True or False")
         return
-    if hint in (int, float) or (origin is typing.Union and set(get_args(hint)) <= {int, float, type(None)}):
+    # an optional number: typing.Optional[float] and float | None (types.UnionType) alike
+    if hint in (int, float) or (origin in (typing.Union, types.UnionType) and set(get_args(hint)) <= {int, float, type(None)}):
         if value is None and type(None) in get_args(hint):
             return
         if not _is_number(value):

@@ -12,8 +12,10 @@ import torch
 from quadwind_trl.config import (
     LEGACY_SENSORS,
     EnvConfig,
+    MonitorConfig,
     SensorConfig,
     config_from_dict,
+    with_monitor,
     with_sensing,
     with_sensor_preset,
 )
@@ -42,6 +44,10 @@ def _raises(call, exc, words):
 def _env(**parts) -> EnvConfig:
     """``EnvConfig`` with fields of its parts replaced: ``_env(vehicle={"mass_kg": 1.0})``."""
     return replace(E, **{part: replace(getattr(E, part), **changes) for part, changes in parts.items()})
+
+
+def _monitor(**changes) -> EnvConfig:
+    return with_monitor(E, replace(MonitorConfig(), **changes))
 
 
 def _sensor(**changes) -> EnvConfig:
@@ -83,6 +89,20 @@ BAD_CONFIGS = [
     ("cruise speed 50", lambda: _env(trajectories={"cruise_speed_m_s": 50.0}).validate(), ValueError, ["cruise_speed_m_s=50.0", "[0.5, 25.0]"]),
     ("sensor preset", lambda: with_sensor_preset(E, "gps"), ValueError, ["'gps'", "'rtk'", "'legacy_walk'"]),
     ("sensing", lambda: with_sensing(E, "perfect"), ValueError, ["sensing='perfect'", "'no_bias'", "'true_state'"]),
+    ("monitor tilt margin 60", lambda: _monitor(tilt_margin_deg=60.0).validate(), ValueError,
+     ["MonitorConfig.tilt_margin_deg=60.0", "[0.0, 45.0]"]),
+    ("monitor thrust fraction at hover", lambda: _monitor(thrust_fraction=0.4).validate(), ValueError,
+     ["MonitorConfig.thrust_fraction=0.4", "[0.5, 1.0]"]),
+    ("monitor height drop 0", lambda: _monitor(height_below_ref_m=0.0).validate(), ValueError,
+     ["MonitorConfig.height_below_ref_m=0.0", "[0.5, 100.0]"]),
+    ("monitor height as a string", lambda: _monitor(height_below_ref_m="5").validate(), TypeError,
+     ["residual.monitor.height_below_ref_m='5'", "a number"]),
+    ("monitor negative hold", lambda: _monitor(hold_s=-1.0).validate(), ValueError, ["monitor.hold_s=-1.0", ">= 0"]),
+    ("monitor hold of minutes", lambda: _monitor(hold_s=120.0).validate(), ValueError, ["MonitorConfig.hold_s=120.0", "[0.0, 60.0]"]),
+    ("monitor as a dict", lambda: _env(residual={"monitor": {"hold_s": 1.0}}).validate(), TypeError,
+     ["ResidualConfig.monitor={'hold_s': 1.0}", "MonitorConfig or None"]),
+    ("saved monitor, unknown field", lambda: config_from_dict(EnvConfig, {"residual": {"monitor": {"hold": 1.0}}}), KeyError,
+     ["MonitorConfig has no fields ['hold']", "hold_s"]),
     ("saved config, unknown field", lambda: config_from_dict(EnvConfig, {"vehicle": {"mass": 2.0}}), KeyError,
      ["VehicleConfig", "'mass'", "'mass_kg'"]),
     ("saved walk sensors, other noise", lambda: config_from_dict(SensorConfig, {

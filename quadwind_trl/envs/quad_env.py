@@ -10,7 +10,7 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
-from ..keys import MEAS_KEY
+from ..keys import MEAS_KEY, MONITOR_KEY
 from ..validation import check_action
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
@@ -113,6 +113,8 @@ class QuadWindEnv(EnvBase):
     * ``pd_wrench`` [4]: the PD output the next action is added to; ``ff_wrench`` [4]: the
       correction applied over the last step; ``cmd_wrench`` [4]: the total command applied;
     * ``tilt_cmd`` [1] (rad), ``tilt_saturated`` [1]: the PD's commanded tilt and its limit flag;
+    * ``monitor_active`` [1] (only with ``ResidualConfig.monitor`` on): the runtime monitor held
+      the residual at zero over the last control step (:mod:`quadwind_trl.envs.monitor`);
     * ``step`` [1]: the control-step index (int64; the 10 Hz log ticks where it is a multiple of 10);
     * ``truth``: simulator truth for labels and diagnostics (``pos``, ``vel``, ``quat``, ``omega``,
       ``wind`` the total air velocity, ``mean_wind`` the turbulence-free mean).
@@ -178,6 +180,8 @@ class QuadWindEnv(EnvBase):
         spec["pos_error"] = _vec(n, 3, dev)
         spec["tilt_saturated"] = Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)
         spec["step"] = _vec(n, 1, dev, torch.int64)
+        if self.config.residual.monitor is not None:
+            spec[MONITOR_KEY] = Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)
         self.observation_spec = spec
         self.action_spec = Bounded(low=-1.0, high=1.0, shape=(n, 4), device=dev)
         self.reward_spec = Unbounded(shape=(n, 1), device=dev)
@@ -269,6 +273,8 @@ class QuadWindEnv(EnvBase):
         )
         for key, (source, _) in _STATE_VIEWS.items():
             obs[key] = s[source]
+        if self.config.residual.monitor is not None:
+            obs[MONITOR_KEY] = s["control", "monitor_left"] > 0
         return obs
 
     def sim_state(self, key: NestedKey) -> torch.Tensor:

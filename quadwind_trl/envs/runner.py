@@ -62,6 +62,13 @@ class FlightResults:
         return torch.sqrt(self.rmse_xy**2 + self.rmse_z**2)
 
 
+def scored_samples(log: TensorDictBase, pattern_start: Tensor) -> Tensor:
+    """``[n, T]`` bool: the samples of a flight record (:attr:`FlightResults.log`, with ``"step"``)
+    taken at steps the RMSE scores: after the pattern starts (``pattern_start`` ``[n]``), while the
+    episode runs. With one decision per log tick (the RL regimes) they are exactly the scored steps."""
+    return log["valid"] & (log["step"].squeeze(-1) > pattern_start.unsqueeze(-1))
+
+
 def _base(env: EnvBase) -> QuadWindEnv:
     base = getattr(env, "base_env", env)
     if not isinstance(base, QuadWindEnv):

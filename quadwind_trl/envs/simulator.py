@@ -15,7 +15,8 @@ mode phases and amplitudes or cube) and the sensor noise seed (``params["sensors
 * ``nav``: the navigation solution the PD flies on (``pos``, ``vel``, ``baro_offset``);
 * ``ref``: the reference (``pos``, ``vel``, ``acc``, ``yaw``);
 * ``control``: the PD output (``pd_wrench``, ``tilt_cmd``, ``tilt_saturated``), the residual
-  ``ff`` and the total command ``cmd``.
+  ``ff`` and the total command ``cmd``; with the runtime monitor on (``ResidualConfig.monitor``),
+  also ``monitor_left``: its steps left of PD alone (:mod:`~quadwind_trl.envs.monitor`).
 
 :class:`QuadSimulator` composes the vehicle, the PD cascade, the trajectory library, the
 atmosphere and the sensors. Its methods are pure (in, out), so the TorchRL env, the PD-only
@@ -25,7 +26,8 @@ task's (:mod:`quadwind_trl.envs.task`), not the physics'.
 One control step (10 ms) from state ``k`` (which already holds the wind, reference, measurements
 and PD wrench *at* step ``k``):
 
-1. residual: scale the action, smooth it, limit its slew, add it to the PD wrench;
+1. residual: scale the action, smooth it, limit its slew (zero it while the runtime monitor, if
+   on, holds it), add it to the PD wrench;
 2. allocate rotor speeds (motors off before arming) and run 5 physics substeps with the wind held;
 3. at step ``k + 1``: sample the wind (advecting the frozen turbulence), the reference, the
    sensors, and the PD wrench for the next step.
@@ -40,6 +42,7 @@ from ..config import GRAVITY_M_S2, EnvConfig
 from ..keys import MEAS_KEY
 from .atmosphere import Atmosphere
 from .controller import ControllerParams, pd_control
+from .monitor import MonitorParams, monitor_gate
 from .navigation import NavigationParams, init_navigation, update_navigation
 from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
 from .scenarios import SCENARIO_FIELDS
@@ -76,6 +79,8 @@ class QuadSimulator:
         self.navigation = NavigationParams.from_config(c.navigation)
         self.action_scale = torch.tensor(c.residual.action_scale, device=dev)
         self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
+        self.monitor = (None if c.residual.monitor is None else
+                        MonitorParams.from_config(c.residual.monitor, c.controller, self.vehicle, c.timing.control_dt_s))
         self.control_dt = c.timing.control_dt_s
         self.arm_step = self.trajectories.arm_step
 
@@ -111,6 +116,8 @@ class QuadSimulator:
         )
         control = TensorDict(ff=torch.zeros(n, 4, device=self.device), cmd=torch.zeros(n, 4, device=self.device),
                              batch_size=[n])
+        if self.monitor is not None:  # a config constant: with the monitor off the state is as before it existed
+            control["monitor_left"] = torch.zeros(n, 1, dtype=torch.int64, device=self.device)
         state = TensorDict(step=step, body=body, wind=wind_state, sensors=sensor_state, control=control, batch_size=[n])
         state = self._observe_instant(params, state, first=True)
         # the keys in the order :meth:`step` returns them: a compiled step is guarded on the order
@@ -143,6 +150,12 @@ class QuadSimulator:
         target = action.clamp(-1.0, 1.0) * self.action_scale
         ff = r.smoothing * ff_prev + (1.0 - r.smoothing) * target
         ff = ff_prev + torch.maximum(torch.minimum(ff - ff_prev, self.slew_limit), -self.slew_limit)
+        monitor = {}
+        if self.monitor is not None:  # a config constant: off, the step runs the same ops as before the monitor
+            height_error = state["nav", "pos"][..., 2:] - state["ref", "pos"][..., 2:]
+            ff, monitor["monitor_left"] = monitor_gate(ff, state["control", "pd_wrench"][..., :1] + ff[..., :1],
+                                                       self._cos_tilt(state), height_error,
+                                                       state["control", "monitor_left"], self.monitor)
         armed = (state["step"] >= self.arm_step).unsqueeze(-1)
         cmd = torch.where(armed, state["control", "pd_wrench"] + ff, 0.0)  # what is applied: motors off before arming
         rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
@@ -160,7 +173,7 @@ class QuadSimulator:
             body=TensorDict(**body._asdict(), specific_force=specific_force, batch_size=n),  # initial()'s key order
             wind=state["wind"],
             sensors=state["sensors"],
-            control=TensorDict(ff=ff, cmd=cmd, batch_size=n),
+            control=TensorDict(ff=ff, cmd=cmd, **monitor, batch_size=n),  # initial()'s key order
             nav=state["nav"],
             batch_size=n,
         )
@@ -170,6 +183,15 @@ class QuadSimulator:
         new["finite"] = finite
         # contiguous leaves, as initial() returns: a compiled step is guarded on its input's strides
         return _sanitize(new, ~finite).apply(Tensor.contiguous)
+
+    def _cos_tilt(self, state: TensorDict) -> Tensor:
+        """``[N, 1]`` cosine of the tilt from vertical in the attitude the PD flies on: the body's,
+        or the measured roll and pitch (Z-Y-X angles: the body z axis's vertical component is
+        cos(roll) cos(pitch))."""
+        if self.cfg.controller.feedback == "truth":
+            return quat_to_rotmat(state["body", "quat"])[..., 2, 2:]
+        attitude = state["sensors", MEAS_KEY, "attitude"]
+        return torch.cos(attitude[..., :1]) * torch.cos(attitude[..., 1:2])
 
     # --- what the vehicle and the world look like at one instant --------------------------------
 

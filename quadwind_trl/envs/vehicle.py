@@ -109,6 +109,12 @@ class VehicleParams:
             rotor=RotorAero.from_config(cfg) if cfg.rotor_aero == "momentum" else None,
         )
 
+    @property
+    def collective_limit(self) -> float:
+        """N: the most collective thrust a command gets, the allocation's cap or four rotors at
+        full speed, whichever is lower."""
+        return min(self.collective_max, 4 * self.rotor_thrust_max)
+
 
 _INFLOW_NEWTON_STEPS = 4
 _MAX_PITCH_RAD = 0.5  # ~29 deg effective collective: beyond it a blade section stalls

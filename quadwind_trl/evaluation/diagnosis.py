@@ -32,7 +32,7 @@ from torch import Tensor
 
 from ..config import EnvConfig
 from ..envs.rotations import quat_to_rotmat
-from ..envs.runner import FlightResults, NestedKey
+from ..envs.runner import FlightResults, NestedKey, scored_samples
 from ..envs.vehicle import VehicleParams
 from ..keys import MEAN_WIND_KEY, MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_KEY, WIND_KEY
 from ..rl.envs import find_transform, make_env, vecnorm
@@ -66,8 +66,7 @@ class Limits:
 
     @classmethod
     def of(cls, config: EnvConfig, obs_clip: float | None) -> "Limits":
-        vehicle = VehicleParams.from_config(config.vehicle)
-        return cls(math.radians(config.controller.max_tilt_deg), min(vehicle.collective_max, 4 * vehicle.rotor_thrust_max),
+        return cls(math.radians(config.controller.max_tilt_deg), VehicleParams.from_config(config.vehicle).collective_limit,
                    obs_clip)
 
 
@@ -116,7 +115,7 @@ def step_diagnostics(res: FlightResults, scenarios: TensorDictBase, payload: dic
         out["action"] = torch.zeros(n * t, 4)
     out = out.reshape(n, t)
     pattern_start, _ = env.base_env.sim.trajectories.schedule(scenarios["traj_id"], scenarios["altitude_m"])
-    out["scored"] = log["valid"] & (log["step"].squeeze(-1) > pattern_start.unsqueeze(-1))
+    out["scored"] = scored_samples(log, pattern_start)
     out["time_s"] = log["step"].squeeze(-1) * config.timing.control_dt_s
     return out
 
