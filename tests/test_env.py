@@ -126,7 +126,9 @@ def test_tilt_limit_saturates_and_the_vehicle_is_blown_away():
 
 
 def test_zero_residual_policy_reproduces_pd_bit_for_bit():
-    cfg = EnvConfig(trajectories=TrajectoryConfig(horizontal_duration_s=6.0, vertical_top_m=12.0))
+    # the spiral's hold at its top 1 s instead of 5 (it set the batch's length: 12.8 s, now 8.8 s;
+    # the horizontal patterns fly 6 s): a longer hover adds steps, not coverage
+    cfg = EnvConfig(trajectories=TrajectoryConfig(horizontal_duration_s=6.0, vertical_top_m=12.0, vertical_hold_s=1.0))
     env = QuadWindEnv(cfg, batch_size=[3])
     sc = make_scenarios(  # airborne at the pattern start: the ground phase adds steps, not coverage
         3, traj_id=["figure8_h", "spiral_ascent", "lawnmower_h"], altitude_m=12.0, wind_speed_ref_m_s=7.0,
@@ -470,11 +472,21 @@ def test_every_sensor_preset_builds_and_flies():
 
 @pytest.mark.long
 def test_compiled_step_matches_eager():
-    cfg = EnvConfig(trajectories=short_trajectories())
-    sc = make_scenarios(2, traj_id=[1, 7], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
-                        turb_seed=torch.tensor([3, 4]), sensor_seed=torch.tensor([5, 6]))
-    eager = _stepped(QuadWindEnv(cfg, batch_size=[2]), sc, 60)
-    compiled = _stepped(QuadWindEnv(cfg, batch_size=[2], compile_step=True), sc, 60)
+    """The compiled step flies as the eager one. Its env is the one the horizontal replay record's
+    compiled flights use (tests/test_replay.py: the shipped horizontal policy's env on the quick
+    sweep's flights, 3 rows), so one compilation serves both: inductor caches the graph on disk
+    (this test took 56 s on a cold cache, 11 s warm, on a loaded machine), and this test, marked
+    long, is collected first, before the replay test."""
+    from quadwind_trl.evaluation.ablation import policy_env_config
+    from quadwind_trl.manifest import CHECKPOINT_DIR
+    from quadwind_trl.quick import SWEEP_QUICK
+    from quadwind_trl.rl.policy import load_policy
+
+    cfg = SWEEP_QUICK.config(policy_env_config(load_policy(CHECKPOINT_DIR / "policy_horizontal.pt")[1]))
+    sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
+                        turb_seed=torch.tensor([3, 4, 5]), sensor_seed=torch.tensor([5, 6, 7]))
+    eager = _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60)
+    compiled = _stepped(QuadWindEnv(cfg, batch_size=[3], compile_step=True), sc, 60)
     torch.testing.assert_close(compiled["truth", "pos"], eager["truth", "pos"], rtol=1e-5, atol=1e-4)
     torch.testing.assert_close(pack_channels(compiled[MEAS_KEY]), pack_channels(eager[MEAS_KEY]), rtol=1e-5, atol=1e-4)
 
