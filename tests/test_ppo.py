@@ -19,7 +19,7 @@ from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, vecnorm
 from quadwind_trl.rl.config import Curriculum, PPOConfig, vertical_curriculum
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.policy import build_actor_critic, load_policy
-from quadwind_trl.rl.trainer import PPOTrainer
+from quadwind_trl.rl.trainer import PPOTrainer, ResumeMismatch
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -97,7 +97,7 @@ def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
                     lr=1e-3, lr_schedule="linear", eval_every_frames=0, checkpoint_every_frames=1)
     planned = [1e-3, 7.5e-4, 5e-4, 2.5e-4]  # one per update; 0 is reached only as the run ends
     assert [cfg.lr_at(f) for f in (0, 128, 256, 384, 512)] == pytest.approx(planned + [0.0])
-    assert PPOConfig().lr_at(10**6) == PPOConfig().lr  # the paper's constant rate
+    assert PPOConfig(lr_schedule="constant").lr_at(10**6) == PPOConfig().lr  # the paper's constant rate
 
     def interrupt_after_second(metrics: dict) -> None:
         if metrics["frames"] == 256:
@@ -113,6 +113,17 @@ def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
         assert [float(r.split(",")[1]) for r in rows] == pytest.approx(planned), name
         optim = torch.load(run / "checkpoints" / "latest.pt", weights_only=True)["optimizer"]
         assert optim["param_groups"][0]["lr"] == pytest.approx(planned[-1]), name
+    # a run resumed under another schedule would be another recipe: refused, naming both
+    with pytest.raises(ResumeMismatch, match=r"lr_schedule='constant' but the checkpoint's run used 'linear'"):
+        PPOTrainer(spec, replace(cfg, lr_schedule="constant"), runs["full"], progress=False).train(resume=True)
+    # a checkpoint saved before the field existed ran the paper's constant rate
+    latest = runs["full"] / "checkpoints" / "latest.pt"
+    old = torch.load(latest, weights_only=True)
+    del old["ppo_config"]["lr_schedule"]
+    torch.save(old, latest)
+    with pytest.raises(ResumeMismatch, match=r"lr_schedule='linear' but the checkpoint's run used 'constant'"):
+        PPOTrainer(spec, cfg, runs["full"], progress=False).train(resume=True)
+    PPOTrainer(spec, replace(cfg, total_frames=5 * 128, threads=2), runs["resumed"], progress=False).train(resume=True)
 
 
 def test_validation_score_and_scenarios():

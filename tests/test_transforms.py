@@ -480,7 +480,7 @@ def test_estimate_every_s_is_validated_recorded_and_defaults_for_old_policies(bu
     """A whole multiple of the log interval, named in the error; policies record it in their env
     spec, and those saved before it existed fly with every tick (0.1 s)."""
     from quadwind_trl.manifest import CHECKPOINT_DIR
-    from quadwind_trl.rl.envs import RLEnvSpec, policy_estimate_every_s
+    from quadwind_trl.rl.envs import RLEnvSpec, policy_estimate_every_s, recipe_estimate_every_s
     from quadwind_trl.rl.policy import spec_to_dict
     from quadwind_trl.validation import load_checkpoint
 
@@ -495,5 +495,8 @@ def test_estimate_every_s_is_validated_recorded_and_defaults_for_old_policies(bu
     assert policy_estimate_every_s(recorded) == 0.5
     older = {key: value for key, value in recorded.items() if key != "estimate_every_s"}
     assert policy_estimate_every_s(older) == 0.1 == RLEnvSpec().estimate_every_s
+    # the PPO recipes' default: the largest whole multiple of the log interval at or below tau / 30
+    for tau, every in ((30.0, 1.0), (20.0, 0.6), (3.0, 0.1), (0.0, 0.1), (60.0, 2.0)):
+        assert recipe_estimate_every_s(tau, 0.1) == every, tau
     for regime in ("horizontal", "vertical"):  # the shipped policies predate the setting
         assert policy_estimate_every_s(load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["env_spec"]) == 0.1

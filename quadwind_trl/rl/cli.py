@@ -18,13 +18,15 @@ from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..quick import PPO_QUICK
 from ..regimes import regime_config
 from .config import LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
-from .envs import DEFAULT_RANGES, RLEnvSpec, validated_tau_s
+from .envs import DEFAULT_RANGES, RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from .paired import validation_scenarios
-from .trainer import PPOTrainer
+from .trainer import PPOTrainer, ResumeMismatch
 
-# frames between evaluations: a vertical evaluation flies up to 30,900 steps (~5 min), a horizontal
-# one 21,740 (~3.5 min) at ~10 ms per step on this 2-core machine
-DEFAULT_EVAL_EVERY = {"horizontal": 500_000, "vertical": 750_000}
+# frames between evaluations on the validation sweep, whose best one is kept: every 16 (horizontal)
+# and 24 (vertical) batches of 16,384, 5 and 3 evaluations in a 1.5M-frame run, plus the last one.
+# A horizontal evaluation (45 episodes, 2,174 decisions) took 35-38 s after the first (which also
+# compiles and flies PD: ~150 s) on this 2-core machine
+DEFAULT_EVAL_EVERY = {"horizontal": 262_144, "vertical": 393_216}
 
 
 def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
@@ -39,8 +41,8 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--steps-per-env", type=int, default=None,
                    help="steps per sub-env per batch (default 256: 64 x 256 = 16384 = the paper's 8 envs x 2048)")
     p.add_argument("--lr-schedule", default=None, choices=list(LR_SCHEDULES),
-                   help="learning rate over the run: constant 3e-4 (the paper, default) or linear decay to 0 "
-                        "(a recipe candidate, docs/rl.md 'Choosing the training recipe')")
+                   help=f"learning rate over the run: linear decay from 3e-4 to 0 (default: {PPOConfig.lr_schedule}, "
+                        "chosen by experiment, docs/rl.md 'Choosing the training recipe') or constant 3e-4 (the paper)")
     p.add_argument("--reward-scaling", default=None, choices=list(REWARD_SCALINGS),
                    help="none (the paper, default) or return_std: rewards divided by the running std of the discounted "
                         "return in the PPO update (a recipe candidate; evaluation is unchanged)")
@@ -52,10 +54,10 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--ema-tau-s", type=float, default=None,
                    help="time constant (s) of the EMA on the wind estimate the policy sees, 0: unfiltered (default: the "
                         f"one chosen on the estimator's validation flights, recorded in its manifest; else {DEFAULT_TAU_S})")
-    p.add_argument("--estimate-every-s", type=float, default=RLEnvSpec.estimate_every_s,
+    p.add_argument("--estimate-every-s", type=float, default=None,
                    help="seconds between a sub-env's wind-estimator queries, a whole multiple of the 0.1 s log interval; "
-                        "the estimate is held in between and the EMA keeps its time constant (default "
-                        f"{RLEnvSpec.estimate_every_s:g}: every tick; docs/rl.md, 'How often the estimator runs')")
+                        "the estimate is held in between and the EMA keeps its time constant (default: the largest "
+                        "multiple at or below tau / 30, e.g. 1 s at tau = 30 s; docs/rl.md, 'How often the estimator runs')")
     p.add_argument("--eager", action="store_true",
                    help="fly the simulator eagerly instead of through torch.compile (the default: compiled; --quick is eager)")
     p.add_argument("--wind-input", default="estimate", choices=["estimate", "zero", "truth"],
@@ -97,7 +99,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
                          config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager,
-                         estimate_every_s=args.estimate_every_s)
+                         **({} if args.estimate_every_s is None else {"estimate_every_s": args.estimate_every_s}))
     except ValueError as err:  # a bad setting (e.g. --estimate-every-s 0.25): the message names the allowed values
         raise SystemExit(f"error: {err}") from None
     if args.quick:
@@ -125,6 +127,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         except (FileNotFoundError, ValueError) as err:
             raise SystemExit(f"error: {err}") from None
     spec = replace(spec, ema_tau_s=args.ema_tau_s if args.ema_tau_s is not None else validated_tau_s(bundle))
+    if args.estimate_every_s is None:
+        spec = replace(spec, estimate_every_s=recipe_estimate_every_s(spec.ema_tau_s, spec.env_config.timing.log_dt_s))
     print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)
@@ -143,7 +147,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     t0 = time.perf_counter()
     try:
         result = trainer.train(resume=args.resume)
-    except (FileExistsError, FileNotFoundError) as err:  # --resume mistakes
+    except (FileExistsError, FileNotFoundError, ResumeMismatch) as err:  # --resume mistakes
         raise SystemExit(f"error: {err}") from None
     manifest = json.loads((out / "policy.json").read_text())
     m = manifest["metrics"]

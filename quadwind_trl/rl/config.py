@@ -8,9 +8,10 @@ setting                     paper                  here
 actor / critic              MLP 2 x 256            separate MLPs 2 x 256, Tanh (SB3's default)
 action distribution         (SB3: diag. Gaussian,  TanhNormal on [-1, 1]^4 (exact log-probs of the
                             clipped to bounds)     bounded action), state-independent scale
-learning rate               3e-4                   3e-4 (Adam, eps 1e-5 as SB3); lr_schedule
-                                                   "linear" decays it to 0 over the run (a
-                                                   recipe candidate, docs/rl.md)
+learning rate               3e-4, constant         3e-4 (Adam, eps 1e-5 as SB3) decayed
+                                                   linearly to 0 over the run (lr_schedule,
+                                                   chosen by experiment: docs/rl.md,
+                                                   "Choosing the training recipe")
 reward scaling              (not stated)           none; reward_scaling "return_std" divides by
                                                    the running std of the discounted return
                                                    (a recipe candidate, rl/reward_scale.py)
@@ -54,7 +55,7 @@ class PPOConfig:
     epochs: int = 10  # paper
     minibatch: int = 512  # paper
     lr: float = 3e-4  # paper
-    lr_schedule: str = "constant"  # paper; one of LR_SCHEDULES
+    lr_schedule: str = "linear"  # one of LR_SCHEDULES; the paper: "constant" (docs/rl.md, "Choosing the training recipe")
     reward_scaling: str = "none"  # paper; one of REWARD_SCALINGS
     clip_epsilon: float = 0.2  # paper
     entropy_coeff: float = 0.005  # paper

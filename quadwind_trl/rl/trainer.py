@@ -30,6 +30,30 @@ from .policy import action_scale, build_actor_critic, policy_payload, spec_to_di
 from .update import PPOUpdate
 
 
+# PPOConfig fields a resumed run may change: how long it runs, how often it evaluates and
+# checkpoints, and its threads; any other change would make it another recipe
+RESUMABLE_CHANGES = ("total_frames", "eval_every_frames", "checkpoint_every_frames", "threads", "update_threads")
+# what runs saved before a PPOConfig field existed used (their checkpoints lack it)
+SAVED_BEFORE_FIELD = {"lr_schedule": "constant", "reward_scaling": "none"}
+
+
+class ResumeMismatch(ValueError):
+    """A resumed run's PPO settings differ from its checkpoint's."""
+
+
+def check_same_recipe(saved: dict, cfg: PPOConfig) -> None:
+    """Refuse to resume a checkpoint saved with ``saved`` (its ``ppo_config``) under ``cfg`` when
+    they differ in anything but :data:`RESUMABLE_CHANGES`, naming the field and both values."""
+    saved = {**SAVED_BEFORE_FIELD, **saved}
+    for name, value in asdict(cfg).items():
+        if name in RESUMABLE_CHANGES or name not in saved:
+            continue
+        before = saved[name]
+        if (list(before) if isinstance(before, (list, tuple)) else before) != (list(value) if isinstance(value, tuple) else value):
+            raise ResumeMismatch(f"resume: PPOConfig.{name}={value!r} but the checkpoint's run used {before!r}; "
+                                 f"resume with the run's settings (e.g. --{name.replace('_', '-')} {before}) or start a new --out")
+
+
 SELECTION_RULE = (f"the policy of the evaluation with the lowest validation score: mean episode RMSE + mean RMSE of the "
                   f"worst {VALIDATION_TAIL_FRACTION:.0%} of episodes, on the regime's validation sweep; the last iterate "
                   "when the run evaluates nothing")
@@ -218,6 +242,7 @@ class PPOTrainer:
         checkpoint = None
         if resume:
             checkpoint = torch.load(self.checkpoint_path, weights_only=True)
+            check_same_recipe(checkpoint["ppo_config"], cfg)
             learner.load_state_dict(checkpoint)
             progress = Progress(**checkpoint["progress"])
             torch.random.set_rng_state(checkpoint["rng"])
