@@ -75,13 +75,15 @@ def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_pat
         monkeypatch.setattr(reproduce, name, path)
     # validation score (m, lower is better) of each seed's kept policy
 
-    scores = {("horizontal", "aware"): (1.0, 0.5, 1.5), ("horizontal", "trained_blind"): (3.0, 1.0, 2.0),
-              ("vertical", "aware"): (3.0, 2.0, 1.0), ("vertical", "trained_blind"): (1.0, 3.0, 2.0)}
+    scores = {("horizontal", "aware"): (1.0, 0.5, 1.5, 2.0, 0.2), ("horizontal", "trained_blind"): (3.0, 1.0, 2.0, 0.5, 4.0),
+              ("vertical", "aware"): (3.0, 2.0, 1.0, 5.0, 0.1), ("vertical", "trained_blind"): (1.0, 3.0, 2.0, 2.5, 0.5)}
+    assert all(len(s) == len(reproduce.SEEDS) for s in scores.values())
 
     def decoy(validation: tuple[float, ...], seed: int) -> float:
-        """A test-sweep xy improvement (%) whose median seed is the one after the validation median."""
-        median = sorted(range(3), key=validation.__getitem__)[1]
-        return {median: 10.0, (median + 1) % 3: 50.0, (median + 2) % 3: 90.0}[seed]
+        """A test-sweep xy improvement (%) whose median seed is the one ranked after the validation
+        median (so shipping by the test sweep would pick another seed)."""
+        order = sorted(range(len(validation)), key=validation.__getitem__)
+        return {order[(rank + 1) % len(order)]: 10.0 * (rank + 1) for rank in range(len(order))}[seed]
 
     for seed in reproduce.SEEDS:
         folder = tmp_path / "seeds" / f"seed{seed}"
