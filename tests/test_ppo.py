@@ -91,7 +91,8 @@ class Interrupt(Exception):
 
 def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
     """The decay is a function of frames, set before every update: a run interrupted after its
-    second update and resumed logs and uses the same rates as an uninterrupted one."""
+    second update and resumed logs and uses the planned rate at every update; a resume under other
+    PPO settings is refused, one that only runs longer on more threads is not."""
     spec = hover_spec(duration_s=1.0)
     cfg = PPOConfig(total_frames=4 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
                     lr=1e-3, lr_schedule="linear", eval_every_frames=0, checkpoint_every_frames=1)
@@ -103,27 +104,25 @@ def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
         if metrics["frames"] == 256:
             raise Interrupt
 
-    runs = {"full": tmp_path / "full", "resumed": tmp_path / "resumed"}
-    PPOTrainer(spec, cfg, runs["full"], progress=False).train()
+    run = tmp_path / "run"
     with pytest.raises(Interrupt):
-        PPOTrainer(spec, cfg, runs["resumed"], progress=False, on_iteration=interrupt_after_second).train()
-    PPOTrainer(spec, cfg, runs["resumed"], progress=False).train(resume=True)
-    for name, run in runs.items():
-        rows = (run / "logs" / "ppo" / "scalars" / "train" / "lr.csv").read_text().split()
-        assert [float(r.split(",")[1]) for r in rows] == pytest.approx(planned), name
-        optim = torch.load(run / "checkpoints" / "latest.pt", weights_only=True)["optimizer"]
-        assert optim["param_groups"][0]["lr"] == pytest.approx(planned[-1]), name
+        PPOTrainer(spec, cfg, run, progress=False, on_iteration=interrupt_after_second).train()
+    PPOTrainer(spec, cfg, run, progress=False).train(resume=True)
+    rows = (run / "logs" / "ppo" / "scalars" / "train" / "lr.csv").read_text().split()
+    assert [float(r.split(",")[1]) for r in rows] == pytest.approx(planned)
+    latest = run / "checkpoints" / "latest.pt"
+    assert torch.load(latest, weights_only=True)["optimizer"]["param_groups"][0]["lr"] == pytest.approx(planned[-1])
     # a run resumed under another schedule would be another recipe: refused, naming both
     with pytest.raises(ResumeMismatch, match=r"lr_schedule='constant' but the checkpoint's run used 'linear'"):
-        PPOTrainer(spec, replace(cfg, lr_schedule="constant"), runs["full"], progress=False).train(resume=True)
+        PPOTrainer(spec, replace(cfg, lr_schedule="constant"), run, progress=False).train(resume=True)
+    # longer, on more threads: the same recipe
+    PPOTrainer(spec, replace(cfg, total_frames=5 * 128, threads=2), run, progress=False).train(resume=True)
     # a checkpoint saved before the field existed ran the paper's constant rate
-    latest = runs["full"] / "checkpoints" / "latest.pt"
     old = torch.load(latest, weights_only=True)
     del old["ppo_config"]["lr_schedule"]
     torch.save(old, latest)
     with pytest.raises(ResumeMismatch, match=r"lr_schedule='linear' but the checkpoint's run used 'constant'"):
-        PPOTrainer(spec, cfg, runs["full"], progress=False).train(resume=True)
-    PPOTrainer(spec, replace(cfg, total_frames=5 * 128, threads=2), runs["resumed"], progress=False).train(resume=True)
+        PPOTrainer(spec, cfg, run, progress=False).train(resume=True)
 
 
 def test_validation_score_and_scenarios():
