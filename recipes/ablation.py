@@ -131,9 +131,9 @@ def main() -> None:
             drawn = ", ".join(str(p) for p in figures.ablation_figures(name, scenarios, results, summary, fig_dir))
         else:
             drawn = f"none (they need the controllers {', '.join(figures.FIGURE_CONTROLLERS)})"
-        vs_pd = "; ".join(f"{c} {summary['rmse_xy'][c]['improvement']:.1f} % (95 % CI {summary['rmse_xy'][c]['ci_low']:.1f} to "
-                          f"{summary['rmse_xy'][c]['ci_high']:.1f}), wins {summary['rmse_xy'][c]['wins']}/{summary['rmse_xy'][c]['n']}"
-                          for c in controllers if c != "pd")
+        xy = summary["rmse_xy"]
+        vs_pd = "; ".join(f"{c} {xy[c]['improvement']:.1f} % (95 % CI {xy[c]['ci_low']:.1f} to {xy[c]['ci_high']:.1f}), "
+                          f"wins {xy[c]['wins']}/{xy[c]['n']}" for c in controllers if c != "pd")
         print(f"{name}: {summary['episodes']} episodes, {time.perf_counter() - start:.0f} s; xy RMSE reduction vs PD: {vs_pd}; "
               f"figures: {drawn}")
 

@@ -28,10 +28,10 @@ from ..quick import PPO_QUICK
 from ..rl.envs import DEFAULT_RANGES
 from ..rl.paired import paired_metrics, validation_scenarios
 from ..rl.policy import load_policy
-from .ablation import fly_controllers, policy_env_config
+from .ablation import WIND_INPUT, fly_controllers, policy_env_config
 
-#: the ablation controller that flies a policy as it trained, by its env spec's ``wind_input``
-CONTROLLER_OF_WIND_INPUT = {"estimate": "aware", "zero": "blind", "truth": "oracle"}
+# the ablation controllers that fly the main policy, one per wind input (``WIND_INPUT``)
+POLICY_CONTROLLERS = ("aware", "blind", "oracle")
 
 
 def validate_policy(policy_path: str | Path, estimator_path: str | Path | None = None, *,
@@ -58,7 +58,8 @@ def validate_policy(policy_path: str | Path, estimator_path: str | Path | None =
         return config
 
     config = override(policy_env_config(payload))
-    controller = CONTROLLER_OF_WIND_INPUT[spec.get("wind_input", "estimate")]
+    wind_input = spec.get("wind_input", "estimate")
+    controller = next(c for c in POLICY_CONTROLLERS if WIND_INPUT[c] == wind_input)  # flown as it trained
     estimator = None if controller == "oracle" else load_estimator(
         regime, estimator_path or spec.get("estimator_path"), untrained=spec.get("untrained_estimator", False),
         config=config)

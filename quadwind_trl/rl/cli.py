@@ -98,8 +98,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     try:
         spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                         config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager,
-                         **({} if args.estimate_every_s is None else {"estimate_every_s": args.estimate_every_s}))
+                         config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager)
     except ValueError as err:  # a bad setting (e.g. --estimate-every-s 0.25): the message names the allowed values
         raise SystemExit(f"error: {err}") from None
     if args.quick:
@@ -126,9 +125,13 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
                                     config=spec.env_config, device=spec.device)
         except (FileNotFoundError, ValueError) as err:
             raise SystemExit(f"error: {err}") from None
-    spec = replace(spec, ema_tau_s=args.ema_tau_s if args.ema_tau_s is not None else validated_tau_s(bundle))
-    if args.estimate_every_s is None:
-        spec = replace(spec, estimate_every_s=recipe_estimate_every_s(spec.ema_tau_s, spec.env_config.timing.log_dt_s))
+    tau_s = args.ema_tau_s if args.ema_tau_s is not None else validated_tau_s(bundle)
+    every_s = (args.estimate_every_s if args.estimate_every_s is not None
+               else recipe_estimate_every_s(tau_s, spec.env_config.timing.log_dt_s))
+    try:
+        spec = replace(spec, ema_tau_s=tau_s, estimate_every_s=every_s)
+    except ValueError as err:  # e.g. --estimate-every-s 0.25: the message names the allowed values
+        raise SystemExit(f"error: {err}") from None
     print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)
