@@ -31,7 +31,7 @@ from tensordict import TensorDictBase
 from .estimator import load_estimator
 from .keys import OBSERVATION_DIM, OBSERVATION_KEY
 from .manifest import CHECKPOINT_DIR
-from .rl.envs import Regime, WindInput, check_regime, make_env, policy_ema_tau_s, policy_estimate_every_s
+from .rl.envs import Regime, WindInput, check_regime, make_env, policy_env_settings
 from .validation import check_action, load_checkpoint
 
 ENV_IDS = {"horizontal": "QuadWind-Horizontal-v0", "vertical": "QuadWind-Vertical-v0"}
@@ -39,12 +39,13 @@ ACTION_DIM = 4
 
 
 def shipped_policy_inputs(regime: Regime, estimator) -> dict:
-    """What the shipped policy for ``regime`` saw: its observation statistics, the EMA time
-    constant on its wind estimate and how often the estimator ran (``make_env`` keywords)."""
+    """What the shipped policy for ``regime`` saw: its observation statistics and the env settings
+    it trained with (:func:`~quadwind_trl.rl.envs.policy_env_settings`: the EMA time constant on
+    its wind estimate, how often the estimator ran, the inputs it trained without), as ``make_env``
+    keywords."""
     check_regime(regime)  # before the regime names a file
     payload = load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")
-    return {"vecnorm_state": payload["vecnorm"], "ema_tau_s": policy_ema_tau_s(payload["env_spec"], estimator),
-            "estimate_every_s": policy_estimate_every_s(payload["env_spec"])}
+    return {"vecnorm_state": payload["vecnorm"], **policy_env_settings(payload["env_spec"], estimator)}
 
 
 class _BatchedStack:

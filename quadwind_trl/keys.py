@@ -6,11 +6,13 @@ entries, one per instrument of :data:`quadwind_trl.envs.sensors.INSTRUMENTS` (``
 :data:`OBSERVATION_CHANNELS`; code that needs a channel looks its index up by name
 (:func:`observation_index`), never by a number, so the layout can change in this file only.
 The kinematic block (:func:`kinematic_channels`) is shared with the estimator features, which
-import it from here. A leaf module: it imports nothing from the package, so every layer can use it.
+import it from here. :data:`INPUT_GROUPS` names the groups of channels a policy can be trained
+without (:func:`input_channels` expands them). A leaf module: it imports nothing from the
+package, so every layer can use it.
 """
 from __future__ import annotations
 
-from typing import Literal
+from typing import Literal, Sequence
 
 #: the held sensor measurements: a sub-tensordict with one entry per sensor instrument
 MEAS_KEY = "meas"
@@ -57,5 +59,31 @@ def observation_index(name: str) -> int:
     return OBSERVATION_CHANNELS.index(name)
 
 
-#: the two wind channels of the observation (what ``WindZero`` zeroes)
-WIND_INDICES: tuple[int, int] = (observation_index("wind_fwd"), observation_index("wind_left"))
+#: the two wind channels of the observation (what ``wind_input="zero"`` zeroes)
+WIND_CHANNELS: tuple[str, str] = ("wind_fwd", "wind_left")
+WIND_INDICES: tuple[int, int] = (observation_index(WIND_CHANNELS[0]), observation_index(WIND_CHANNELS[1]))
+
+#: named groups of policy inputs a policy can be trained and flown without (``RLEnvSpec.zero_inputs``,
+#: ``--zero-inputs``): the channels through which a memoryless policy could see a steady wind, as
+#: the tilt and the thrust the PD holds against it. Here, beside the layout, because a group is a
+#: set of its channel names and must change with it; the wind channels are not a group: a policy
+#: trains and flies without them by ``wind_input="zero"``, the one way the ablation recognises
+INPUT_GROUPS: dict[str, tuple[str, ...]] = {
+    "attitude": ("roll", "pitch"),
+    "accel": ("acc_bx", "acc_by", "acc_bz"),
+    "pd_thrust": ("pd_thrust_over_weight",),
+}
+#: the channels ``zero_inputs`` may name: every one but the wind's
+ZEROABLE_CHANNELS: tuple[str, ...] = tuple(c for c in OBSERVATION_CHANNELS if c not in WIND_CHANNELS)
+
+
+def input_channels(names: Sequence[str]) -> tuple[str, ...]:
+    """The channels of ``names`` (group names of :data:`INPUT_GROUPS` or channel names), each once,
+    in observation order (one spelling per set of channels, so that two runs zeroing the same
+    inputs record the same ``zero_inputs``)."""
+    unknown = [n for n in names if n not in INPUT_GROUPS and n not in OBSERVATION_CHANNELS]
+    if unknown:
+        raise ValueError(f"zero_inputs: unknown {unknown}; allowed: the groups {sorted(INPUT_GROUPS)} "
+                         f"or the channels {ZEROABLE_CHANNELS}")
+    chosen = {c for n in names for c in INPUT_GROUPS.get(n, (n,))}
+    return tuple(c for c in OBSERVATION_CHANNELS if c in chosen)

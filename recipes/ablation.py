@@ -1,19 +1,21 @@
-"""The paired ablation: PD, wind-blind RL, wind-aware RL, a true-wind oracle and a policy trained
-without wind inputs, on identical replayed episodes of the paper's evaluation sweeps; tables
-(JSON) and figures.
+"""The paired ablation: PD, wind-blind RL, wind-aware RL, a true-wind oracle, a policy trained
+without wind inputs and (given one) a policy trained with the true wind, on identical replayed
+episodes of the paper's evaluation sweeps; tables (JSON) and figures.
 
     python recipes/ablation.py                                   # horizontal 225, vertical 144, OOD 90
     python recipes/ablation.py --sweeps horizontal --policy runs/ppo_horizontal/policy.pt
     python recipes/ablation.py --quick                           # small subsets, short flights
     python recipes/ablation.py --sweeps horizontal --batch 45          # five batches of 45 episodes
+    python recipes/ablation.py --sweeps horizontal --oracle-policy runs/ppo_horizontal_truth/policy.pt
     python recipes/ablation.py --verify results/ablation_horizontal.json --chunks 0:1
     python recipes/ablation.py --resummarize results/seeds/seed0/ablation_*.json
 
 By default the shipped checkpoints are used (``quadwind_trl/checkpoints/policy_<regime>.pt``,
 ``policy_<regime>_trained_blind.pt`` and ``estimator_<regime>.pt``); without a trained-blind
-policy the ``trained_blind`` controller is left out, and said so. Writes ``results/ablation_<sweep>.json`` and ``docs/figures/*.png``
-(``--quick``: under ``runs/quick/``); ``python recipes/report.py`` renders them into
-docs/results.md. ``--batch B`` flies B episodes at a time (default: the whole sweep in one batch,
+policy the ``trained_blind`` controller is left out, and said so; ``trained_oracle`` (a policy
+trained with ``--wind-input truth``, none is shipped) flies only with ``--oracle-policy``.
+Writes ``results/ablation_<sweep>.json`` and ``docs/figures/*.png`` (``--quick``: under
+``runs/quick/``); ``python recipes/report.py`` renders them into docs/results.md. ``--batch B`` flies B episodes at a time (default: the whole sweep in one batch,
 the fastest), recorded in the file. ``--verify FILE`` writes nothing: it re-flies batches
 ``--chunks A:B`` of a results file exactly as the file records them (sweep, controllers, policy,
 estimator, flights, simulator, batch layout) and reports, per controller, against the
@@ -38,8 +40,9 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.evaluation import figures
-from quadwind_trl.evaluation.ablation import (CONTROLLERS, episode_table, episode_table_from_json, fly_controllers,
-                                              policy_compile_step, policy_env_config, summarize_ablation)
+from quadwind_trl.evaluation.ablation import (CONTROLLERS, TRAINED_POLICY_KEYS, episode_table, episode_table_from_json,
+                                              fly_controllers, policy_compile_step, policy_env_config, summarize_ablation)
+from quadwind_trl.evaluation.phases import pattern_starts
 from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, flown_quick, replay_verdict, verify_ablation
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
@@ -59,8 +62,11 @@ def main() -> None:
                         help="estimator checkpoints, same order, or 'ukf' (the model-based filter, horizontal only)")
     parser.add_argument("--blind-policy", type=Path, nargs="*", default=None,
                         help="policies trained with --wind-input zero, same order (default: shipped, if any)")
+    parser.add_argument("--oracle-policy", type=Path, nargs="*", default=None,
+                        help="policies trained with --wind-input truth, same order (default: none, and no trained_oracle)")
     parser.add_argument("--controllers", nargs="+", default=None, choices=list(CONTROLLERS),
-                        help=f"default: {' '.join(CONTROLLERS)} (trained_blind only where a trained-blind policy exists)")
+                        help=f"default: {' '.join(CONTROLLERS)} (trained_blind only where a trained-blind policy exists, "
+                             "trained_oracle only with --oracle-policy)")
     parser.add_argument("--quick", action="store_true", help="one seed and intensity per sweep, 10 s patterns flown from their start")
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
@@ -103,7 +109,13 @@ def main() -> None:
         policy_path = checkpoint("policy", regime, args.policy)
         blind_path = checkpoint("policy", regime, args.blind_policy) if args.blind_policy else (
             CHECKPOINT_DIR / f"policy_{regime}_trained_blind.pt")
+        oracle_path = checkpoint("policy", regime, args.oracle_policy) if args.oracle_policy else None
         controllers = tuple(args.controllers or CONTROLLERS)
+        if args.controllers is None and oracle_path is None:
+            controllers = tuple(c for c in controllers if c != "trained_oracle")
+        elif "trained_oracle" in controllers and (oracle_path is None or not oracle_path.exists()):
+            parser.error("trained_oracle needs --oracle-policy, a policy trained with --wind-input truth"
+                         + (f"; none at {oracle_path}" if oracle_path is not None else ""))
         if args.controllers is None and not blind_path.exists():
             controllers = tuple(c for c in controllers if c != "trained_blind")
             print(f"{name}: no trained-blind policy at {repo_relative(blind_path)}; flying {', '.join(controllers)}")
@@ -117,13 +129,16 @@ def main() -> None:
         compile_step = False if args.eager else policy_compile_step(payload)
         start = time.perf_counter()
         batch = min(args.batch or scenarios.batch_size[0], scenarios.batch_size[0])
-        flies_blind = "trained_blind" in controllers
+        trained = {c: path for c, path in (("trained_blind", blind_path), ("trained_oracle", oracle_path)) if c in controllers}
         results = fly_controllers(regime, scenarios, policy_path, estimator, controllers, batch=batch,
                                   progress=True, config_override=override, compile_step=compile_step,
-                                  blind_policy_path=blind_path if flies_blind else None)
-        summary = summarize_ablation(name, episode_table(scenarios, results), controllers)
+                                  trained_policies=trained)
+        # the flights' own env config (the policy's, shortened under --quick) schedules each pattern
+        flown_config = policy_env_config(payload) if override is None else override(policy_env_config(payload))
+        table = episode_table(scenarios, results, pattern_starts(scenarios, flown_config))
+        summary = summarize_ablation(name, table, controllers)
         summary.update(command=command_line(sys.argv), git_commit=commit, platform=platform_info(), policy=repo_relative(policy_path),
-                       blind_policy=repo_relative(blind_path) if flies_blind else None,
+                       **{key: repo_relative(trained[c]) if c in trained else None for c, key in TRAINED_POLICY_KEYS.items()},
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
                        estimator_manifest=getattr(estimator, "manifest", {}).get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)

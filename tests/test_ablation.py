@@ -49,7 +49,8 @@ def test_trained_blind_flies_the_same_worlds(tmp_path, episodes):
     sweep, scenarios, override = episodes
     blind = _saved_as(tmp_path, "blind.pt", _trained_blind)
     results = fly_controllers("horizontal", scenarios, AWARE, load_estimator("horizontal"),
-                              ("pd", "blind", "aware", "trained_blind"), config_override=override, blind_policy_path=blind,
+                              ("pd", "blind", "aware", "trained_blind"), config_override=override,
+                              trained_policies={"trained_blind": blind},
                               compile_step=False)  # eager: compiling four envs cost 100 s of the test's 118
     for metric in ("rmse_xy", "rmse_z", "crashed"):
         assert torch.equal(getattr(results["trained_blind"], metric), getattr(results["blind"], metric))
@@ -77,9 +78,9 @@ def test_trained_blind_refuses_a_policy_that_saw_the_wind_or_flew_another_vehicl
 
     def fly(path):
         fly_controllers("horizontal", scenarios, AWARE, estimator, ("pd", "trained_blind"), config_override=override,
-                        blind_policy_path=path)
+                        trained_policies={"trained_blind": path})
 
-    with pytest.raises(ValueError, match="blind_policy_path"):
+    with pytest.raises(ValueError, match=r"needs trained_policies\['trained_blind'\]"):
         fly(None)
     with pytest.raises(ValueError, match="wind_input='estimate'"):
         fly(AWARE)
@@ -92,7 +93,7 @@ def test_trained_blind_refuses_a_policy_that_saw_the_wind_or_flew_another_vehicl
         fly(_saved_as(tmp_path, "heavier.pt", heavier))
 
 
-def test_seed_table_reports_every_seed_and_the_mean_and_range():
+def test_seed_table_reports_every_seed_and_the_mean_range_and_t_interval():
     from quadwind_trl.evaluation.report import seeds_section
 
     def result(aware: float, blind: float) -> dict:
@@ -104,9 +105,10 @@ def test_seed_table_reports_every_seed_and_the_mean_and_range():
     rows = {tuple(line.split(" | ")[:2]): line.split(" | ")[2:] for line in text.splitlines() if line.startswith("| ")}
     aware = rows["| horizontal xy", "wind-aware vs PD"]
     assert aware[:3] == ["+50.0 (200/225)", "+40.0 (200/225)", "+60.0 (200/225)"]
-    assert aware[3] == "+50.0 (+40.0 to +60.0) |"
-    assert rows["| horizontal xy", "trained blind vs PD"][3] == "+28.3 (+20.0 to +35.0) |"
-    assert rows["| horizontal xy", "perception: wind-aware vs trained blind"][3] == "+21.7 (+5.0 to +40.0) |"
+    assert aware[3] == "+50.0 (+40.0 to +60.0)"
+    assert aware[4] == "+25.2 to +74.8 |"  # 50 +- t(0.975, 2) 10 / sqrt(3)
+    assert rows["| horizontal xy", "trained blind vs PD"][3] == "+28.3 (+20.0 to +35.0)"
+    assert rows["| horizontal xy", "perception: wind-aware vs trained blind"][3] == "+21.7 (+5.0 to +40.0)"
     assert not any(sweep != "| horizontal xy" for sweep, _ in rows if sweep != "| sweep")  # no made-up rows
 
 

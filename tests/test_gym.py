@@ -94,7 +94,7 @@ def test_sb3_example_trains(tmp_path):
 
 def test_gym_filters_the_wind_estimate_as_the_shipped_policy_was_trained():
     from quadwind_trl.manifest import CHECKPOINT_DIR
-    from quadwind_trl.rl.envs import find_transform, policy_ema_tau_s
+    from quadwind_trl.rl.envs import find_transform, policy_env_settings
     from quadwind_trl.rl.policy import load_policy
     from quadwind_trl.transforms import WindEstimate
 
@@ -102,7 +102,7 @@ def test_gym_filters_the_wind_estimate_as_the_shipped_policy_was_trained():
         env = qgym.QuadWindVectorEnv(regime, 1, **_short(regime))
         wind = find_transform(env.stack.env, WindEstimate)
         _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
-        assert wind.ema_config.tau_s == policy_ema_tau_s(payload["env_spec"], wind.estimator)
+        assert wind.ema_config.tau_s == policy_env_settings(payload["env_spec"], wind.estimator)["ema_tau_s"]
         # an explicit setting still wins
         env = qgym.QuadWindVectorEnv(regime, 1, **(_short(regime) | {"ema_tau_s": 0.0}))
         assert find_transform(env.stack.env, WindEstimate).ema_config.tau_s == 0.0

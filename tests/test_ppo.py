@@ -92,7 +92,7 @@ class Interrupt(Exception):
 def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
     """The decay is a function of frames, set before every update: a run interrupted after its
     second update and resumed logs and uses the planned rate at every update; a resume under other
-    PPO settings is refused, one that only runs longer on more threads is not."""
+    PPO settings or other policy inputs is refused, one that only runs longer on more threads is not."""
     spec = hover_spec(duration_s=1.0)
     cfg = PPOConfig(total_frames=4 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
                     lr=1e-3, lr_schedule="linear", eval_every_frames=0, checkpoint_every_frames=1)
@@ -115,6 +115,9 @@ def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
     # a run resumed under another schedule would be another recipe: refused, naming both
     with pytest.raises(ResumeMismatch, match=r"lr_schedule='constant' but the checkpoint's run used 'linear'"):
         PPOTrainer(spec, replace(cfg, lr_schedule="constant"), run, progress=False).train(resume=True)
+    # without some inputs it would train another policy: refused, naming both
+    with pytest.raises(ResumeMismatch, match=r"RLEnvSpec\.zero_inputs=\('roll',\) but the checkpoint's run used \(\)"):
+        PPOTrainer(replace(spec, zero_inputs=("roll",)), cfg, run, progress=False).train(resume=True)
     # longer, on more threads: the same recipe
     PPOTrainer(spec, replace(cfg, total_frames=5 * 128, threads=2), run, progress=False).train(resume=True)
     # a checkpoint saved before the field existed ran the paper's constant rate
@@ -215,9 +218,10 @@ def test_quick_vertical_curriculum_recipe(tmp_path):
     # one batch, no evaluation: what is checked is the saved env; tests/test_reproduce.py flies the
     # recipe's whole --quick run (four batches and an evaluation)
     m = _run_recipe("ppo_vertical_curriculum.py", tmp_path, "--sensing", "true_state", "--total-frames", "256",
-                    "--eval-episodes", "0")
+                    "--eval-episodes", "0", "--zero-inputs", "pd_thrust", "attitude")
     assert m["env_spec"]["env_config"]["reward"]["w_z"] == 0.5
     assert m["env_spec"]["env_config"]["controller"]["feedback"] == "truth"  # --sensing reaches the saved env
+    assert m["env_spec"]["zero_inputs"] == ["roll", "pitch", "pd_thrust_over_weight"]  # groups, as channels in order
     assert m["curriculum"]["stages"][-1] == ["vertical_climb", "spiral_ascent", "figure8_3d", "lawnmower_scan"]
 
 

@@ -1,5 +1,5 @@
 """The wind-aware transform stack: specs, one feature code path online/offline, per-row resets,
-the frozen estimator, the WindZero ablation and the zero-action = PD invariant."""
+the frozen estimator, the ZeroInputs ablations and the zero-action = PD invariant."""
 from __future__ import annotations
 
 import math
@@ -19,10 +19,10 @@ from quadwind_trl.envs import QuadWindEnv, ScenarioSampler, make_scenarios
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.envs.sensors import pack_channels
 from quadwind_trl.estimator.ema import EMAConfig, ema_init, ema_scan, ema_step
-from quadwind_trl.keys import MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_DIM, WIND_INDICES
+from quadwind_trl.keys import MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_DIM, WIND_CHANNELS, WIND_INDICES
 from quadwind_trl.estimator import untrained_estimator
 from quadwind_trl.rl.envs import make_env, vecnorm, wind_estimate
-from quadwind_trl.transforms import EpisodeControl, PolicyObservation, WindEstimate, WindZero
+from quadwind_trl.transforms import EpisodeControl, PolicyObservation, WindEstimate, ZeroInputs
 
 RAW = (MEAS_KEY, "cmd_wrench", "tilt_cmd", "tilt_saturated", "ref_pos", "ref_yaw")
 
@@ -109,12 +109,12 @@ def test_vertical_env_and_schema_mismatch(bundle):
 
 
 def test_each_transform_alone(bundle):
-    """WindEstimate (estimate, truth), PolicyObservation and WindZero on a bare env."""
+    """WindEstimate (estimate, truth), PolicyObservation and ZeroInputs on a bare env."""
     cfg = short_config()
     for transforms in (
         [WindEstimate(bundle, config=cfg)],
-        [WindEstimate(source="truth", config=cfg), PolicyObservation(cfg), WindZero()],
-        [WindEstimate(source="truth", config=cfg), WindZero(in_key="wind_hat")],
+        [WindEstimate(source="truth", config=cfg), PolicyObservation(cfg), ZeroInputs(WIND_CHANNELS)],
+        [WindEstimate(source="truth", config=cfg), ZeroInputs(None, in_key="wind_hat")],
         [EpisodeControl(3)],
     ):
         env = TransformedEnv(QuadWindEnv(cfg, batch_size=[2]), Compose(*transforms))
@@ -391,8 +391,11 @@ def test_policy_ema_tau_s_falls_back_to_the_estimator_checkpoint(bundle):
     """Policies record the env's EMA tau; older ones trained with their estimator's."""
     from quadwind_trl.estimator import DEFAULT_TAU_S, load_estimator
     from quadwind_trl.manifest import CHECKPOINT_DIR
-    from quadwind_trl.rl.envs import policy_ema_tau_s
+    from quadwind_trl.rl.envs import policy_env_settings
     from quadwind_trl.validation import load_checkpoint
+
+    def policy_ema_tau_s(env_spec: dict, estimator) -> float:
+        return policy_env_settings(env_spec, estimator)["ema_tau_s"]
 
     assert policy_ema_tau_s({"ema_tau_s": 2.0}, bundle) == 2.0
     assert policy_ema_tau_s({}, replace(bundle, ema_tau_s=4.5)) == 4.5
@@ -480,7 +483,7 @@ def test_estimate_every_s_is_validated_recorded_and_defaults_for_old_policies(bu
     """A whole multiple of the log interval, named in the error; policies record it in their env
     spec, and those saved before it existed fly with every tick (0.1 s)."""
     from quadwind_trl.manifest import CHECKPOINT_DIR
-    from quadwind_trl.rl.envs import RLEnvSpec, policy_estimate_every_s, recipe_estimate_every_s
+    from quadwind_trl.rl.envs import RLEnvSpec, policy_env_settings, recipe_estimate_every_s
     from quadwind_trl.rl.policy import spec_to_dict
     from quadwind_trl.validation import load_checkpoint
 
@@ -492,11 +495,12 @@ def test_estimate_every_s_is_validated_recorded_and_defaults_for_old_policies(bu
     assert wind_estimate(make_env("horizontal", bundle, 1, config=short_config(), estimate_every_s=1.0,
                                   compile_step=False)).stride == 10
     recorded = spec_to_dict(RLEnvSpec(estimate_every_s=0.5))
-    assert policy_estimate_every_s(recorded) == 0.5
+    assert policy_env_settings(recorded, bundle)["estimate_every_s"] == 0.5
     older = {key: value for key, value in recorded.items() if key != "estimate_every_s"}
-    assert policy_estimate_every_s(older) == 0.1 == RLEnvSpec().estimate_every_s
+    assert policy_env_settings(older, bundle)["estimate_every_s"] == 0.1 == RLEnvSpec().estimate_every_s
     # the PPO recipes' default: the largest whole multiple of the log interval at or below tau / 30
     for tau, every in ((30.0, 1.0), (20.0, 0.6), (3.0, 0.1), (0.0, 0.1), (60.0, 2.0)):
         assert recipe_estimate_every_s(tau, 0.1) == every, tau
     for regime in ("horizontal", "vertical"):  # the shipped policies predate the setting
-        assert policy_estimate_every_s(load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["env_spec"]) == 0.1
+        spec = load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["env_spec"]
+        assert policy_env_settings(spec, None)["estimate_every_s"] == 0.1

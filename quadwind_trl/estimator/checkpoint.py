@@ -75,7 +75,7 @@ class EstimatorBundle:
     ``ema_tau_s`` is the post-filter time constant recorded in the checkpoint, if any: the env
     no longer reads it (``make_env(..., ema_tau_s=...)`` sets the filter), but policies trained
     before their env spec recorded ``ema_tau_s`` were trained with it
-    (:func:`quadwind_trl.rl.envs.policy_ema_tau_s`).
+    (:func:`quadwind_trl.rl.envs.policy_env_settings`).
     """
 
     model: nn.Module  # standardised windows [B, T, C] -> standardised (north, east) [B, 2]

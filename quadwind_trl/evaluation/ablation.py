@@ -1,4 +1,4 @@
-"""The paired three-way ablation (plus a true-wind oracle) on identical replayed physics.
+"""The paired three-way ablation (plus true-wind oracles) on identical replayed physics.
 
 Every controller flies the same scenarios, in an env of the same batch size, so each episode's
 world (turbulence field, sensor noise and bias, initial state) is bitwise the same for all of
@@ -6,7 +6,7 @@ them (``docs/simulator.md``, exact replay; the flights go through
 :func:`~quadwind_trl.rl.paired.fly_paired`, as the trainer's evaluation against PD does):
 
 * ``pd``: the wind-blind PD baseline (zero residual);
-* ``blind``: the trained policy with its two wind inputs forced to zero (``WindZero``): the same
+* ``blind``: the trained policy with its two wind inputs forced to zero (``ZeroInputs``): the same
   weights, the wind channel removed at inference (the paper's "wind-blind RL");
 * ``aware``: the trained policy reading the frozen estimator's filtered wind (the paper's system);
 * ``oracle``: the same policy fed the true turbulence-free mean wind instead of the estimate
@@ -14,12 +14,20 @@ them (``docs/simulator.md``, exact replay; the flights go through
 * ``trained_blind``: a second policy, trained from scratch with its wind inputs zeroed
   (``--wind-input zero``) and flown that way (not in the paper: trained-blind vs wind-aware is the
   value of perception to a policy that could adapt to its absence, where zeroing the inputs of
-  a policy trained with them also measures how much it leans on them).
+  a policy trained with them also measures how much it leans on them);
+* ``trained_oracle``: a third policy, trained with the true mean wind (``--wind-input truth``) and
+  flown with it (not in the paper: trained-oracle vs trained-blind is what a perfect estimate is
+  worth to a policy trained to use it).
+
+Every policy flies with the env settings it trained with
+(:func:`~quadwind_trl.rl.envs.policy_env_settings`), its ``zero_inputs`` included; ``blind`` adds
+the wind channels to them. The separately trained policies must have trained on the same env
+config and without the same inputs as the wind-aware one, so that only the wind input differs.
 """
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -28,17 +36,20 @@ from ..config import EnvConfig, config_from_dict
 from ..envs.runner import FlightResults, NestedKey
 from ..envs.trajectories import trajectory_ids, trajectory_name
 from ..estimator import EstimatorBundle
-from ..rl.envs import make_env, policy_ema_tau_s, policy_estimate_every_s
+from ..rl.envs import make_env, policy_env_settings
 from ..rl.paired import fly_paired, improvement
 from ..rl.policy import load_policy
 from .grouping import summarize
+from .phases import phase_columns
 from .statistics import decompose, paired_summary
 
-CONTROLLERS = ("pd", "blind", "aware", "oracle", "trained_blind")
+CONTROLLERS = ("pd", "blind", "aware", "oracle", "trained_blind", "trained_oracle")
 # PD ignores its observation: "truth" spares it the estimator (the physics is the same either way)
-WIND_INPUT = {"pd": "truth", "blind": "zero", "aware": "estimate", "oracle": "truth", "trained_blind": "zero"}
-# the controllers that fly the second, trained-blind policy instead of the wind-aware one
-BLIND_TRAINED = frozenset({"trained_blind"})
+WIND_INPUT = {"pd": "truth", "blind": "zero", "aware": "estimate", "oracle": "truth", "trained_blind": "zero",
+              "trained_oracle": "truth"}
+# the controllers flown by their own, separately trained policy (trained with the wind input they
+# fly with, WIND_INPUT) instead of the wind-aware one, and the key a results file records its path under
+TRAINED_POLICY_KEYS = {"trained_blind": "blind_policy", "trained_oracle": "oracle_policy"}
 TRACE_KEYS = (("truth", "pos"), "ref_pos", ("truth", "mean_wind"), "step")
 
 
@@ -65,7 +76,7 @@ def fly_controllers(
     config_override: Callable[[EnvConfig], EnvConfig] | None = None,
     compile_step: bool | None = None,
     chunks: range | None = None,
-    blind_policy_path: str | Path | None = None,
+    trained_policies: Mapping[str, str | Path] | None = None,
     log_keys: Sequence[NestedKey] = TRACE_KEYS,
     estimate_every_s: float | None = None,
 ) -> dict[str, FlightResults]:
@@ -76,27 +87,15 @@ def fly_controllers(
     ``config_override`` changes it (e.g. shorter flights for smoke runs). ``compile_step``
     (default: :func:`policy_compile_step`) chooses the compiled or the eager simulator step.
     ``batch`` episodes fly at once (default: all); ``chunks`` flies only those batches.
-    ``blind_policy_path`` is the trained-blind policy (needed for ``trained_blind``); it must have
-    trained on the same env config, so that every controller flies the same worlds. ``log_keys``:
+    ``trained_policies`` maps each controller of :data:`TRAINED_POLICY_KEYS` that is flown to its
+    policy file (:func:`load_trained_policies` checks them). ``log_keys``:
     the entries of the 10 Hz flight record (default :data:`TRACE_KEYS`; any entry of the
     transformed env's step output, e.g. ``"observation"``, the policy's normalised input).
     ``estimate_every_s``: seconds between estimator queries (default: what each policy trained
-    with, :func:`~quadwind_trl.rl.envs.policy_estimate_every_s`)."""
+    with, :func:`~quadwind_trl.rl.envs.policy_env_settings`)."""
     policies = {"aware": load_policy(policy_path, device=device)}
-    if BLIND_TRAINED & set(controllers):
-        if blind_policy_path is None:
-            raise ValueError(f"controllers {sorted(BLIND_TRAINED & set(controllers))} need blind_policy_path (a policy "
-                             "trained with --wind-input zero)")
-        policies["trained_blind"] = load_policy(blind_policy_path, device=device)
-        trained_with = policies["trained_blind"][1]["env_spec"].get("wind_input")
-        if trained_with != "zero":
-            raise ValueError(f"blind_policy_path {blind_policy_path} trained with wind_input={trained_with!r}; "
-                             "a trained-blind policy trains with 'zero' (--wind-input zero)")
-        configs = {name: policy_env_config(payload) for name, (_, payload) in policies.items()}
-        if configs["trained_blind"] != configs["aware"]:
-            raise ValueError(f"the trained-blind policy {blind_policy_path} trained on another env config than "
-                             f"{policy_path}: their episodes would not be the same worlds")
     _, payload = policies["aware"]
+    policies.update(load_trained_policies(controllers, trained_policies or {}, policy_path, payload, device))
     config = policy_env_config(payload)
     if compile_step is None:
         compile_step = policy_compile_step(payload)
@@ -105,26 +104,70 @@ def fly_controllers(
     n = batch or scenarios.batch_size[0]
 
     def flight(name: str):
-        actor, inputs = policies["trained_blind" if name in BLIND_TRAINED else "aware"]
+        actor, inputs = policies[name if name in TRAINED_POLICY_KEYS else "aware"]
+        settings = policy_env_settings(inputs["env_spec"], estimator)
+        if estimate_every_s is not None:
+            settings["estimate_every_s"] = estimate_every_s
+        # "blind" is the aware policy with wind_input="zero": its wind channels join its zero_inputs
         env = make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
-                       device=device, config=config, vecnorm_state=inputs["vecnorm"],
-                       ema_tau_s=policy_ema_tau_s(inputs["env_spec"], estimator), compile_step=compile_step,
-                       estimate_every_s=policy_estimate_every_s(inputs["env_spec"]) if estimate_every_s is None else estimate_every_s)
+                       device=device, config=config, vecnorm_state=inputs["vecnorm"], compile_step=compile_step, **settings)
         return env, None if name == "pd" else actor
 
     flights = {name: flight(name) for name in controllers}
     return fly_paired(flights, scenarios, log_keys=log_keys, progress=progress, chunks=chunks)
 
 
-def episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults]) -> TensorDict:
+def load_trained_policies(controllers: Sequence[str], paths: Mapping[str, str | Path], aware_path: str | Path,
+                          aware_payload: dict, device: str = "cpu") -> dict[str, tuple]:
+    """``{controller: (actor, payload)}`` for each flown controller of :data:`TRAINED_POLICY_KEYS`,
+    from ``paths`` (checked by :func:`check_trained_policy`)."""
+    unknown = sorted(set(paths) - set(TRAINED_POLICY_KEYS))
+    if unknown:
+        raise ValueError(f"trained_policies: unknown controllers {unknown}; allowed: {sorted(TRAINED_POLICY_KEYS)}")
+    policies = {}
+    for name in (c for c in controllers if c in TRAINED_POLICY_KEYS):
+        if paths.get(name) is None:
+            raise ValueError(f"controller {name!r} needs trained_policies[{name!r}]: a policy trained with "
+                             f"--wind-input {WIND_INPUT[name]}")
+        policies[name] = load_policy(paths[name], device=device)
+        check_trained_policy(name, paths[name], policies[name][1], aware_path, aware_payload)
+    return policies
+
+
+def check_trained_policy(name: str, path: str | Path, payload: dict, aware_path: str | Path, aware_payload: dict) -> None:
+    """A ``ValueError`` naming the controller, the path and the value unless the policy of
+    controller ``name`` trained with the wind input it flies with, on the wind-aware policy's env
+    config (the same worlds) and without the same inputs (only the wind input differs)."""
+    wind_input = WIND_INPUT[name]
+    trained_with = payload["env_spec"].get("wind_input")
+    if trained_with != wind_input:
+        raise ValueError(f"trained_policies[{name!r}]={path} trained with wind_input={trained_with!r}; "
+                         f"a {name} policy trains with {wind_input!r} (--wind-input {wind_input})")
+    if policy_env_config(payload) != policy_env_config(aware_payload):
+        raise ValueError(f"trained_policies[{name!r}]={path} trained on another env config than {aware_path}: "
+                         "their episodes would not be the same worlds")
+    zeroed, aware_zeroed = (policy_env_settings(p["env_spec"], None)["zero_inputs"] for p in (payload, aware_payload))
+    if set(zeroed) != set(aware_zeroed):  # the order they were named in changes nothing
+        raise ValueError(f"trained_policies[{name!r}]={path} trained with zero_inputs={zeroed}, {aware_path} with "
+                         f"{aware_zeroed}: the comparison would change more than the wind input")
+
+
+def episode_table(scenarios: TensorDictBase, results: dict[str, FlightResults],
+                  pattern_start: torch.Tensor | None = None) -> TensorDict:
     """``[episodes]`` table of each episode's world (trajectory, wind, intensity, case) and every
-    controller's RMSEs and crash flag, keyed ``<controller>_<metric>``."""
+    controller's RMSEs and crash flag, keyed ``<controller>_<metric>``. Given each episode's
+    ``pattern_start`` (:func:`~quadwind_trl.evaluation.phases.pattern_starts`) and flight records
+    with :data:`TRACE_KEYS`, also the horizontal error per flight phase
+    (:func:`~quadwind_trl.evaluation.phases.phase_columns`: ``<controller>_sse_xy_<phase>`` and
+    ``<controller>_samples_<phase>``)."""
     table = scenarios.select("traj_id", "wind_speed_ref_m_s", "turb_intensity", "case_id", strict=False).clone()
     for name, res in results.items():
         table[f"{name}_rmse_xy"] = res.rmse_xy
         table[f"{name}_rmse_z"] = res.rmse_z
         table[f"{name}_rmse"] = res.rmse
         table[f"{name}_crashed"] = res.crashed
+        if pattern_start is not None:
+            table.update({f"{name}_{key}": column for key, column in phase_columns(res, pattern_start).items()})
     return table
 
 
@@ -146,13 +189,17 @@ def _grouped_decomposition(table: TensorDictBase, metric: str, labels: torch.Ten
         aware = table[f"aware_{metric}"][m]
         d = decompose(table[f"pd_{metric}"][m], table[f"blind_{metric}"][m], aware)
         row = d.as_dict()
-        for name in ("oracle", "trained_blind"):
+        for name in ("oracle", "trained_blind", "trained_oracle"):
             if f"{name}_{metric}" in table.keys():
                 row[name] = table[f"{name}_{metric}"][m].double().mean().item()
         if f"trained_blind_{metric}" in table.keys():
+            trained_blind = table[f"trained_blind_{metric}"][m]
             # the value of perception between two trained policies: % of the trained-blind
             # policy's RMSE the wind-aware one removes (positive: the estimate helps)
-            row["trained_perception"] = improvement(table[f"trained_blind_{metric}"][m], aware)
+            row["trained_perception"] = improvement(trained_blind, aware)
+            if f"trained_oracle_{metric}" in table.keys():
+                # the same for a perfect estimate, to a policy trained to use it
+                row["trained_oracle_perception"] = improvement(trained_blind, table[f"trained_oracle_{metric}"][m])
         out[label] = row
     return out
 
@@ -174,6 +221,10 @@ def summarize_ablation(sweep_name: str, table: TensorDictBase, controllers: Sequ
         if {"trained_blind", "aware"} <= set(names):
             # aware vs the policy trained without wind inputs: perception's value, paired
             block["trained_perception"] = paired_summary(table[f"trained_blind_{metric}"], table[f"aware_{metric}"])
+        if {"trained_blind", "trained_oracle"} <= set(names):
+            # the policy trained on the true wind vs the one trained without: a perfect estimate's value
+            block["trained_oracle_vs_trained_blind"] = paired_summary(table[f"trained_blind_{metric}"],
+                                                                      table[f"trained_oracle_{metric}"])
         if {"pd", "blind", "aware"} <= set(names):
             block["decomposition"] = decompose(table[f"pd_{metric}"], table[f"blind_{metric}"], table[f"aware_{metric}"]).as_dict()
             block["by_wind"] = {f"{k:g}": v for k, v in _grouped_decomposition(table, metric, table["wind_speed_ref_m_s"]).items()}

@@ -14,7 +14,8 @@ richer 10 Hz record (:data:`DIAGNOSIS_LOG_KEYS`). From it, per step and episode:
 * the policy's observation normalised by the frozen running statistics of training, *before*
   the clip (recomputed from the logged inputs by the env's own transforms): a value beyond
   :data:`OUT_OF_RANGE_Z` standard deviations from the training mean is an input training rarely
-  or never showed the policy; beyond the clip (``RLEnvSpec.obs_clip``) the policy sees the clip;
+  or never showed the policy; beyond the clip (``RLEnvSpec.obs_clip``) the policy sees the clip
+  (inputs it trained without, ``RLEnvSpec.zero_inputs``, are 0);
 * the wind estimate against the true mean wind.
 
 :func:`episode_indicators` reduces these to per-episode fractions over the scored part of the
@@ -35,8 +36,8 @@ from ..envs.rotations import quat_to_rotmat
 from ..envs.runner import FlightResults, NestedKey, scored_samples
 from ..envs.vehicle import VehicleParams
 from ..keys import MEAN_WIND_KEY, MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_KEY, WIND_KEY
-from ..rl.envs import find_transform, make_env, vecnorm
-from ..transforms import PolicyObservation
+from ..rl.envs import find_transform, make_env, policy_env_settings, vecnorm
+from ..transforms import PolicyObservation, ZeroInputs
 from .ablation import TRACE_KEYS, fly_controllers
 
 #: the 10 Hz record a diagnosis needs: the ablation's trace, every input of the policy
@@ -82,12 +83,17 @@ def step_diagnostics(res: FlightResults, scenarios: TensorDictBase, payload: dic
     flat = log.reshape(-1)
     limits = Limits.of(config, payload["env_spec"].get("obs_clip"))
     # the env's own transforms, so the raw and normalised inputs are the policy's by construction
+    zero_inputs = policy_env_settings(payload["env_spec"], None)["zero_inputs"]
     env = make_env("horizontal" if payload["env_spec"]["regime"] == "horizontal" else "vertical", None, 1,
-                   wind_input="truth", config=config, vecnorm_state=payload["vecnorm"], compile_step=False)
+                   wind_input="truth", config=config, vecnorm_state=payload["vecnorm"], compile_step=False,
+                   zero_inputs=zero_inputs)
     build = find_transform(env, PolicyObservation)
     raw = build(flat.select(*build.in_keys).clone()).select(OBSERVATION_KEY)
     # the frozen normaliser's own step (no update: it is frozen), without the clip that follows it
-    normalised = vecnorm(env)._step(raw, raw.clone())[OBSERVATION_KEY]
+    normalised = vecnorm(env)._step(raw, raw.clone())
+    if zero_inputs:  # inputs the policy trained without: 0 whatever their value, never out of range
+        normalised = find_transform(env, ZeroInputs)(normalised)
+    normalised = normalised[OBSERVATION_KEY]
     err = flat["truth", "pos"] - flat["ref_pos"]
     up = quat_to_rotmat(flat["truth", "quat"])[..., 2, 2].clamp(-1.0, 1.0)
     mean_wind = flat.get(MEAN_WIND_KEY)

@@ -413,3 +413,61 @@ def diagnosis_groups(groups: dict[str, dict], path: Path) -> Path:
                 a.set_title(f"{sweep}: worst 10 by wind-aware xy RMSE; median group")
                 a.legend(fontsize=7)
     return _save(fig, path)
+
+
+# the series of the perception-value figure: (key in an analysed wind group, label, colour)
+PERCEPTION_VALUES = (("aware_vs_trained_blind", "wind-aware vs trained blind", COLORS["aware"]),
+                     ("trained_oracle_vs_trained_blind", "oracle-trained vs trained blind", COLORS["oracle"]))
+PERCEPTION_SHARES = (("zeroing_share", "zeroing share (ours)", COLORS["blind"]),
+                     ("trained_share", "trained-blind share (ours)", COLORS["trained_blind"]))
+
+
+def _seed_series(a, speeds: np.ndarray, blocks: list[dict | None], values, label: str, color: str, offset: float) -> None:
+    """Seed dots and the seed mean with its t-interval, at each wind speed (``blocks``: one
+    ``{"per_seed", "across_seeds"}`` per speed or None; ``values``: per_seed -> the seed values)."""
+    have = [i for i, b in enumerate(blocks) if b is not None]
+    if not have:
+        return
+    x = speeds[have] + offset
+    for xi, i in zip(x, have):
+        seeds = values(blocks[i]["per_seed"])
+        a.scatter(np.full(len(seeds), xi), seeds, s=12, color=color, alpha=0.45, lw=0)
+    across = [blocks[i]["across_seeds"] for i in have]
+    mean = np.array([s["mean"] for s in across])
+    low = np.nan_to_num(mean - np.array([s["t_low"] for s in across]))  # one seed: no bar
+    high = np.nan_to_num(np.array([s["t_high"] for s in across]) - mean)
+    n = sorted({s["n_seeds"] for s in across})
+    a.errorbar(x, mean, yerr=[low, high], fmt="o-", color=color, capsize=3,
+               label=f"{label} (n = {'/'.join(str(k) for k in n)} seeds)")
+
+
+def perception_value(analyses: dict[str, dict], path: Path) -> Path:
+    """The value of the wind estimate per wind speed, one row per sweep (:func:`~quadwind_trl.
+    evaluation.perception.analyse_sweep` results): (a) the RMSE reduction of the wind-aware and
+    the oracle-trained policy against the trained-blind one; (b) perception's share of the gain
+    over PD, with the trained-blind policy as the blind step and by zeroing the wind inputs, beside
+    the paper's zeroing share. Dots: seeds; markers and bars: seed mean and 95 % t-interval."""
+    fig, ax = plt.subplots(len(analyses), 2, figsize=(11, 4.0 * len(analyses)), squeeze=False)
+    for (a, b), (sweep, result) in zip(ax, analyses.items()):
+        rows = {float(k): v for k, v in result["by_wind"].items() if k != "all"}
+        speeds = np.array(sorted(rows))
+        step = 0.12 * (np.diff(speeds).min() if len(speeds) > 1 else 1.0)
+        for k, (key, label, color) in enumerate(PERCEPTION_VALUES):
+            _seed_series(a, speeds, [rows[s].get(key) for s in speeds], lambda ps: [v["improvement"] for v in ps.values()],
+                         label, color, (k - 0.5) * step)
+        a.axhline(0, color="k", lw=0.8)
+        a.set(xlabel="mean wind U (m/s)", ylabel="RMSE reduction vs trained blind (%)",
+              title=f"{sweep}: value of perception, xy (positive: the wind input helps)")
+        for k, (key, label, color) in enumerate(PERCEPTION_SHARES):
+            _seed_series(b, speeds, [rows[s].get(key) for s in speeds], lambda ps: list(ps.values()), label, color,
+                         (k - 0.5) * step)
+        paper_share = [rows[s].get("paper_zeroing_share") for s in speeds]
+        if any(p is not None for p in paper_share):
+            b.plot(speeds, [np.nan if p is None else p for p in paper_share], "kx--", ms=8, label="paper: zeroing share")
+        b.axhline(0, color="k", lw=0.8)
+        b.set(xlabel="mean wind U (m/s)", ylabel="perception share of the gain over PD (%)",
+              title=f"{sweep}: share of the improvement over PD")
+        for panel in (a, b):
+            panel.grid(alpha=0.3)
+            panel.legend(fontsize=8)
+    return _save(fig, path)

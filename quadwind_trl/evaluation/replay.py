@@ -29,7 +29,7 @@ from ..manifest import CHECKPOINT_DIR, ROOT, platform_info, same_platform
 from ..quick import QuickFlights
 from ..regimes import SWEEP_REGIME, SWEEPS
 from ..rl.policy import load_policy
-from .ablation import fly_controllers, policy_env_config
+from .ablation import TRAINED_POLICY_KEYS, fly_controllers, policy_env_config
 from .tracking import sweep_setup
 
 METRICS = ("rmse_xy", "rmse_z")
@@ -178,13 +178,14 @@ def verify_ablation(results: dict, chunks: range | None = None, policy_path=None
     quick = flown_quick(results)
     scenarios, override = sweep_setup(sweep, quick)
     policy = _recorded(policy_path or results["policy"])
-    blind = results.get("blind_policy")
+    # the separately trained policies the file records (files from before a controller existed lack its key)
+    trained = {name: _recorded(results[key]) for name, key in TRAINED_POLICY_KEYS.items() if results.get(key) is not None}
     estimator = load_estimator(regime, estimator_path or results.get("estimator"),
                                config=policy_env_config(load_policy(policy)[1]))
     flown = fly_controllers(regime, scenarios, policy, estimator, tuple(results["controllers"]),
                             batch=results.get("batch", results["episodes"]), config_override=override,
                             compile_step=bool(results.get("compile_step", False)), chunks=chunks,
-                            blind_policy_path=None if blind is None else _recorded(blind))
+                            trained_policies=trained)
     table = results["episodes_table"]
     out, episodes = {}, 0
     for name, res in flown.items():

@@ -3,9 +3,11 @@ section files), every figure of ours beside the paper's."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 from . import paper
+from .perception import across_seeds
 
 
 def _by_number(table: dict) -> list[tuple[str, dict]]:
@@ -240,20 +242,31 @@ SEED_MEASURES = (("aware", "wind-aware vs PD", True), ("trained_blind", "trained
                  ("trained_perception", "perception: wind-aware vs trained blind", False))
 
 
-def _spread(values: list[float]) -> str:
-    return f"{sum(values) / len(values):+.1f} ({min(values):+.1f} to {max(values):+.1f})"
+def _spread(across: dict) -> str:
+    """Seed mean (range) of an :func:`~quadwind_trl.evaluation.perception.across_seeds` block."""
+    return f"{across['mean']:+.1f} ({across['min']:+.1f} to {across['max']:+.1f})"
+
+
+def _t_cell(across: dict) -> str:
+    """The 95 % t-interval over seeds of an ``across_seeds`` block; "-" with one seed."""
+    if not math.isfinite(across["t_low"]):
+        return "-"
+    return f"{across['t_low']:+.1f} to {across['t_high']:+.1f}"
 
 
 def seeds_section(seeds: dict[str, dict[str, dict]]) -> str:
     """Every seed's paired ablation (``results/seeds/<seed>/ablation_<sweep>.json``): RMSE reduction
     against PD of the wind-aware and the trained-blind policies, and perception between them, one
-    column per seed, then the mean and range over the seeds (a measure no seed flew is left out)."""
+    column per seed, then the mean and range over the seeds and a 95 % Student-t interval of the
+    mean (a measure no seed flew is left out)."""
     lines = ["## Across training seeds", "",
              "Each seed trains its own wind-aware and trained-blind policy (`recipes/reproduce.py --full`) and flies the",
-             "full paired ablation (`results/seeds/seed<k>/`); the shipped policies are the median seed's by its own sweep.",
-             "RMSE reduction in % (positive = the first controller tracks better), wins in brackets.", "",
-             "| sweep | measure | " + " | ".join(f"seed {seed}" for seed in seeds) + " | mean (range) |",
-             "|---|---|" + "---|" * (len(seeds) + 1)]
+             "full paired ablation (`results/seeds/seed<k>/`); the shipped policy of each regime and kind is the median seed",
+             "by validation score (`median_seed` in `recipes/reproduce.py`: the test sweeps choose nothing).",
+             "RMSE reduction in % (positive = the first controller tracks better), wins in brackets; the 95 % interval is",
+             "Student's t over the seed values (n - 1 degrees of freedom).", "",
+             "| sweep | measure | " + " | ".join(f"seed {seed}" for seed in seeds) + " | mean (range) | 95 % t-interval |",
+             "|---|---|" + "---|" * (len(seeds) + 2)]
     for sweep, metric, label in SEED_SWEEPS:
         for key, measure, with_wins in SEED_MEASURES:
             blocks = {seed: r.get(sweep, {}).get(metric, {}).get(key) for seed, r in seeds.items()}
@@ -261,14 +274,152 @@ def seeds_section(seeds: dict[str, dict[str, dict]]) -> str:
                 continue
             cells = ["-" if b is None else f"{b['improvement']:+.1f}" + (f" ({b['wins']}/{b['n']})" if with_wins else "")
                      for b in blocks.values()]
-            spread = _spread([b["improvement"] for b in blocks.values() if b is not None])
-            lines.append(f"| {label} | {measure} | " + " | ".join(cells) + f" | {spread} |")
+            across = across_seeds({seed: b["improvement"] for seed, b in blocks.items() if b is not None})
+            lines.append(f"| {label} | {measure} | " + " | ".join(cells) + f" | {_spread(across)} | {_t_cell(across)} |")
     for key, measure in (("aware", "wind-aware"), ("trained_blind", "trained blind")):
         worst = [r.get("ood", {}).get("rmse_xy", {}).get("worst", {}).get(key) for r in seeds.values()]
         if any(w is not None for w in worst):
             lines.append(f"| OOD xy | worst {measure} episode (m) | "
-                         + " | ".join("-" if w is None else f"{w:.2f}" for w in worst) + " | |")
+                         + " | ".join("-" if w is None else f"{w:.2f}" for w in worst) + " | | |")
     lines.append("")
+    return "\n".join(lines)
+
+
+PERCEPTION_VALUES = {"aware_vs_trained_blind": "wind-aware vs trained blind",
+                     "trained_oracle_vs_trained_blind": "oracle-trained vs trained blind"}
+PERCEPTION_SHARES = {"zeroing_share": "zeroing share (ours)", "trained_share": "trained-blind share"}
+SWEEP_TITLES = {"horizontal": "Horizontal", "vertical": "Vertical", "ood": "Out-of-distribution"}  # and their order
+
+
+def _in_sweep_order(by_sweep: dict[str, dict]) -> list[tuple[str, dict]]:
+    """A JSON object's sweeps (stored in key order) in the order of :data:`SWEEP_TITLES`."""
+    return sorted(by_sweep.items(), key=lambda kv: list(SWEEP_TITLES).index(kv[0]) if kv[0] in SWEEP_TITLES else len(SWEEP_TITLES))
+
+
+def _wind_rows(by_wind: dict) -> list[tuple[str, dict]]:
+    """Wind levels in numeric order, then ``"all"``."""
+    return _by_number({k: v for k, v in by_wind.items() if k != "all"}) + [("all", by_wind["all"])]
+
+
+def _present(by_wind: dict, names) -> list[str]:
+    """The measures of ``names`` some wind group of an analysed sweep holds, in that order."""
+    return [name for name in names if any(row.get(name) for row in by_wind.values())]
+
+
+def _seed_cells(block: dict | None) -> str:
+    """Seed mean (range) and its 95 % t-interval with the seed count; "-" where no seed has it."""
+    if block is None or block["across_seeds"]["n_seeds"] == 0:
+        return "- | -"
+    a = block["across_seeds"]
+    return f"{_spread(a)} | {_t_cell(a)} ({a['n_seeds']})"
+
+
+def _paired_cell(block: dict | None) -> str:
+    """A paired summary: improvement (bootstrap 95 % interval), wins."""
+    return "-" if block is None else f"{block['improvement']:+.1f} ({_ci(block)}), {block['wins']}/{block['n']}"
+
+
+def perception_sweep_tables(analysis: dict) -> list[str]:
+    """One sweep of ``results/perception_value.json``: the value of perception per wind level,
+    perception's share of the gain over PD beside the paper's zeroing share, every seed over all
+    episodes, and the value per flight phase."""
+    by_wind = analysis["by_wind"]
+    values = _present(by_wind, PERCEPTION_VALUES)
+    shares = _present(by_wind, PERCEPTION_SHARES)
+    title = SWEEP_TITLES.get(analysis["sweep"], analysis["sweep"])
+    lines = [f"### {title} sweep ({analysis['episodes']} episodes, seeds {', '.join(analysis['seeds'])})", ""]
+    if values:
+        head = "| U (m/s) |" + "".join(f" {PERCEPTION_VALUES[v]}: seed mean (range) | 95 % t (seeds) | pooled episodes (95 % CI), wins |"
+                                     for v in values)
+        lines += ["Value of perception (% of the trained-blind policy's xy RMSE removed):", "", head,
+                  "|---|" + "---|" * (3 * len(values))]
+        lines += [f"| {key} |" + "".join(f" {_seed_cells(row.get(v))} | {_paired_cell((row.get(v) or {}).get('pooled'))} |"
+                                        for v in values) for key, row in _wind_rows(by_wind)]
+        lines.append("")
+    if shares:
+        head = "| U (m/s) |" + "".join(f" {PERCEPTION_SHARES[k]}: seed mean (range) | 95 % t (seeds) |" for k in shares)
+        lines += ["Perception's share of the xy gain over PD (%):", "", head + " paper: zeroing share |",
+                  "|---|" + "---|" * (2 * len(shares) + 1)]
+        for key, row in _wind_rows(by_wind):
+            ref = row.get("paper_zeroing_share")
+            lines.append(f"| {key} |" + "".join(f" {_seed_cells(row.get(k))} |" for k in shares)
+                         + (" - |" if ref is None else f" {ref:.1f} |"))
+        lines.append("")
+    every = by_wind["all"]
+    lines += ["Each seed over all episodes (paired bootstrap 95 % interval):", "",
+              "| seed |" + "".join(f" {PERCEPTION_VALUES[v]} |" for v in values) + "".join(f" {PERCEPTION_SHARES[k]} |" for k in shares),
+              "|---|" + "---|" * (len(values) + len(shares))]
+    for seed in analysis["seeds"]:
+        cells = [_paired_cell(every[v]["per_seed"].get(seed)) if every.get(v) else "-" for v in values]
+        cells += ["-" if not every.get(k) or every[k]["per_seed"].get(seed) is None else f"{every[k]['per_seed'][seed]:+.1f}"
+                  for k in shares]
+        lines.append(f"| {seed} | " + " | ".join(cells) + " |")
+    lines.append("")
+    for value in _present({p: g["all"] for p, g in analysis["by_phase"].items()}, PERCEPTION_VALUES):
+        lines += perception_phase_table(analysis, value)
+    return lines
+
+
+def perception_phase_table(analysis: dict, value: str) -> list[str]:
+    """One measure of :data:`PERCEPTION_VALUES` per flight phase (``quadwind_trl/evaluation/phases.py``):
+    the seed mean per wind level, and over all episodes with its intervals."""
+    phases = analysis["by_phase"]
+    speeds = [key for key, _ in _wind_rows(analysis["by_wind"]) if key != "all"]
+    samples = analysis.get("phase_samples_per_episode", {})
+    lines = [f"{PERCEPTION_VALUES[value].capitalize()} by flight phase (% of the trained-blind policy's xy RMSE in the phase"
+             " removed; seed means per U):", "",
+             "| phase | samples per episode |" + "".join(f" U = {u} |" for u in speeds)
+             + " all: seed mean (range) | 95 % t (seeds) | pooled episodes (95 % CI), wins |",
+             "|---|---|" + "---|" * (len(speeds) + 3)]
+    for phase, groups in phases.items():
+        count = samples.get(phase)
+        cells = ["-" if not groups.get(u, {}).get(value) else f"{groups[u][value]['across_seeds']['mean']:+.1f}" for u in speeds]
+        every = groups["all"].get(value)
+        lines.append(f"| {phase} | {'-' if count is None else f'{count:.0f}'} | " + " | ".join(cells)
+                     + f" | {_seed_cells(every)} | {_paired_cell((every or {}).get('pooled'))} |")
+    return lines + [""]
+
+
+def perception_variants_table(variants: dict) -> list[str]:
+    """Each policy variant's value of perception per wind level, and its change against the base
+    recipe's seeds with a Welch 95 % interval."""
+    lines = ["### Policy variants: which change makes perception matter", "",
+             "Each variant retrains both the wind-aware and the trained-blind policy with one change and flies the same",
+             "paired ablation. *Change* = the variant's seed-mean value minus the base recipe's (positive: the estimate is",
+             "worth more to the variant), with a Welch 95 % interval over the two sets of seeds.", "",
+             "| variant | sweep | U (m/s) | wind-aware vs trained blind: seed mean (range) | 95 % t (seeds) | change vs base (95 % Welch) |",
+             "|---|---|---|---|---|---|"]
+    for name, variant in variants.items():
+        for sweep, analysis in _in_sweep_order(variant["sweeps"]):
+            change = analysis.get("change_vs_base", {})
+            for key, row in _wind_rows(analysis["by_wind"]):
+                c = change.get(key)
+                delta = "-" if c is None else (f"{c['change']:+.1f}" + ("" if not math.isfinite(c["welch_low"])
+                                                                       else f" ({c['welch_low']:+.1f} to {c['welch_high']:+.1f})"))
+                lines.append(f"| `{name}` | {sweep} | {key} | {_seed_cells(row.get('aware_vs_trained_blind'))} | {delta} |")
+    return lines + [""]
+
+
+def perception_section(result: dict) -> str:
+    """The section "What the estimate is worth" from ``results/perception_value.json``
+    (``recipes/perception_value.py``)."""
+    flown = sorted({f"`{read['git_commit']}`" for sweep in result["inputs"]["base"].values() for read in sweep.values()})
+    lines = ["## What the estimate is worth", "",
+             f"Command: `{result['command']}` (commit `{result.get('git_commit')}`); it flies nothing and reads every seed's paired",
+             f"ablation (`results/seeds/seed<k>/`, flown at {', '.join(flown)}). On the same episodes, the wind-aware policy and one",
+             "trained from scratch with its wind inputs zeroed (*trained blind*), and where trained one fed the true mean wind",
+             "in training and flight (*oracle-trained*). *Value* = the share of the trained-blind policy's xy RMSE the other",
+             "removes (positive: the wind input helps): per seed with its paired bootstrap 95 % interval; across seeds the mean,",
+             "range and a Student-t 95 % interval over the seed values (seed-level); *pooled* = the seed-averaged RMSE of each",
+             "episode, paired, with its bootstrap 95 % interval (episode-level, the seeds held fixed). *Zeroing share* is the",
+             "paper's measure: the share of the gain over PD lost when the wind-aware policy's own wind inputs are zeroed;",
+             "the *trained-blind share* puts the trained-blind policy in that place (what a policy that never had the estimate",
+             "loses).", ""]
+    for _, analysis in _in_sweep_order(result["sweeps"]):
+        lines += perception_sweep_tables(analysis)
+    if result.get("variants"):
+        lines += perception_variants_table(result["variants"])
+    lines += [f"![value of the estimate](figures/{Path(result.get('figure', 'perception_value.png')).name})", ""]
     return "\n".join(lines)
 
 
@@ -443,6 +594,9 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
     seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((results_dir / "seeds").glob("seed*"))}
     if any(seeds.values()):
         parts.append(seeds_section({seed: r for seed, r in seeds.items() if r}))
+    perception = results_dir / "perception_value.json"
+    if perception.exists():
+        parts.append(perception_section(json.loads(perception.read_text())))
     times = results_dir / "pipeline_times.json"
     if times.exists():
         parts.append(pipeline_section(json.loads(times.read_text())))

@@ -15,6 +15,7 @@ import torch
 
 from ..config import SENSING, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
+from ..keys import INPUT_GROUPS, input_channels
 from ..quick import PPO_QUICK
 from ..regimes import regime_config
 from .config import LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
@@ -62,6 +63,10 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
                    help="fly the simulator eagerly instead of through torch.compile (the default: compiled; --quick is eager)")
     p.add_argument("--wind-input", default="estimate", choices=["estimate", "zero", "truth"],
                    help="what the policy's wind channels carry during training (paper: estimate)")
+    groups = "; ".join(f"{name}: {' '.join(channels)}" for name, channels in INPUT_GROUPS.items())
+    p.add_argument("--zero-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
+                   help=f"policy inputs forced to 0 in training and whenever the policy flies: groups ({groups}) or "
+                        "channel names (keys.OBSERVATION_CHANNELS, the wind's excepted: --wind-input zero); default: none")
     p.add_argument("--eval-every", type=int, default=None,
                    help=f"frames between evaluations against PD, 0: only at the end (default {DEFAULT_EVAL_EVERY[regime]:,})")
     p.add_argument("--eval-episodes", type=int, default=None,
@@ -98,8 +103,9 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     try:
         spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                         config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager)
-    except ValueError as err:  # a bad setting (e.g. --estimate-every-s 0.25): the message names the allowed values
+                         config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager,
+                         zero_inputs=input_channels(args.zero_inputs))
+    except ValueError as err:  # a bad setting (e.g. --zero-inputs tilt): the message names the allowed values
         raise SystemExit(f"error: {err}") from None
     if args.quick:
         spec, cfg, changes = quick_setup(regime, spec)
@@ -132,7 +138,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         spec = replace(spec, ema_tau_s=tau_s, estimate_every_s=every_s)
     except ValueError as err:  # e.g. --estimate-every-s 0.25: the message names the allowed values
         raise SystemExit(f"error: {err}") from None
-    print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s", flush=True)
+    print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s; "
+          f"wind input: {spec.wind_input}; inputs zeroed: {', '.join(spec.zero_inputs) or 'none'}", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)
     scenarios = validation_scenarios(regime, episodes) if episodes != 0 else None

@@ -11,7 +11,8 @@ Stack (``env.transform[i]``)::
     2 PolicyObservation   observation [23]
     3 RunningObsNorm      (VecNormV2) running mean/var of observation, reduce_batch_dims=True, decay=1.0
     4 ClipTransform       observation clipped to [-obs_clip, obs_clip] after normalisation
-    5 WindZero            (wind_input="zero" only) observation[13:15] = 0
+    5 ZeroInputs          (wind_input="zero" or zero_inputs only) those channels = 0: the wind's
+                          (wind_fwd, wind_left) for "zero", and the zero_inputs channels
     . RewardSum, StepCounter   episode_reward, step_count for logging
 
 Everything that defines an env is in :class:`RLEnvSpec` (a frozen dataclass of plain values and
@@ -22,20 +23,21 @@ its path there), so TorchRL's multi-process collectors can construct it.
 
 The wind estimate's post-filter time constant is ``RLEnvSpec.ema_tau_s`` (default
 ``estimator.ema.DEFAULT_TAU_S``, the paper's); the PPO recipes train with the one chosen on the
-estimator's validation flights (:func:`validated_tau_s`), and trained policies record theirs in
-their env spec, which is what flying them must use (:func:`policy_ema_tau_s`; policies trained
-before that field existed used the value in their estimator's checkpoint).
+estimator's validation flights (:func:`validated_tau_s`). How often the estimator runs is
+``RLEnvSpec.estimate_every_s`` (default: every 10 Hz log tick, 0.1 s); the filter's time constant
+stays in seconds whatever it is. ``RLEnvSpec.zero_inputs`` names policy inputs forced to 0 in
+training and in every flight (a policy trained without them).
 
-How often the estimator runs is ``RLEnvSpec.estimate_every_s`` (default: every 10 Hz log tick,
-0.1 s); the filter's time constant stays in seconds whatever it is. Policies record it in their env
-spec and fly with it (:func:`policy_estimate_every_s`; older policies ran it at every tick).
+Trained policies record all three in their env spec, and flying them must use them:
+:func:`policy_env_settings` reads them (with what policies saved before a setting existed used:
+their estimator checkpoint's tau, the estimator at every tick, no zeroed inputs).
 """
 from __future__ import annotations
 
 import math
 
 from dataclasses import dataclass, field, replace
-from typing import Literal, TypeVar
+from typing import Literal, Mapping, TypeVar
 
 from torchrl.envs import ClipTransform, Compose, RewardSum, StepCounter, TransformedEnv, VecNormV2
 
@@ -44,9 +46,9 @@ from ..envs.quad_env import QuadWindEnv, ScenarioSampler
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
-from ..keys import OBSERVATION_KEY
+from ..keys import OBSERVATION_CHANNELS, OBSERVATION_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
-from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, WindZero
+from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, ZeroInputs
 from ..transforms.wind import estimate_stride
 
 T = TypeVar("T")
@@ -92,6 +94,10 @@ class RLEnvSpec:
     # s between a row's estimator queries (a whole multiple of the log interval; the estimate is
     # held in between): a slow EMA barely moves in 0.1 s, and the estimator is most of collection
     estimate_every_s: float = DEFAULT_ESTIMATE_EVERY_S
+    # policy inputs (keys.OBSERVATION_CHANNELS names) forced to exactly 0 after normalisation and
+    # clipping, in training and in every flight of the policy: a policy trained without them. The
+    # wind channels are not among them: wind_input="zero" removes those
+    zero_inputs: tuple[str, ...] = ()
 
     def __post_init__(self):
         check_regime(self.regime)
@@ -104,6 +110,34 @@ class RLEnvSpec:
         estimate_stride(self.estimate_every_s, self.env_config.timing.log_dt_s, "RLEnvSpec.estimate_every_s")
         if self.desync_steps < 0:
             raise ValueError(f"RLEnvSpec.desync_steps={self.desync_steps}; allowed: >= 0")
+        self._check_zero_inputs()
+
+    def _check_zero_inputs(self) -> None:
+        value = self.zero_inputs
+        if not isinstance(value, (tuple, list)) or not all(isinstance(name, str) for name in value):
+            raise ValueError(f"RLEnvSpec.zero_inputs={value!r}; allowed: a tuple of channel names of {ZEROABLE_CHANNELS}")
+        # a list (a JSON round trip) is the same setting: stored as the tuple the field declares
+        object.__setattr__(self, "zero_inputs", tuple(value))
+        wind = [name for name in value if name in WIND_CHANNELS]
+        if wind:
+            raise ValueError(f"RLEnvSpec.zero_inputs={value!r}: {wind} are the wind channels, which wind_input='zero' "
+                             f"removes (the one way the ablation recognises a policy trained without them); "
+                             f"allowed: channels of {ZEROABLE_CHANNELS}")
+        unknown = [name for name in value if name not in OBSERVATION_CHANNELS]
+        if unknown:
+            raise ValueError(f"RLEnvSpec.zero_inputs={value!r}: unknown channels {unknown}; allowed: channels of "
+                             f"{ZEROABLE_CHANNELS}")
+        if len(set(value)) < len(value):
+            twice = sorted({name for name in value if value.count(name) > 1})
+            raise ValueError(f"RLEnvSpec.zero_inputs={value!r}: {twice} given twice; allowed: each channel once, of "
+                             f"{ZEROABLE_CHANNELS}")
+
+    @property
+    def zeroed_channels(self) -> tuple[str, ...]:
+        """Every channel the env forces to 0, in observation order: ``zero_inputs``, and the wind's
+        for ``wind_input="zero"``."""
+        zeroed = set(self.zero_inputs) | (set(WIND_CHANNELS) if self.wind_input == "zero" else set())
+        return tuple(name for name in OBSERVATION_CHANNELS if name in zeroed)
 
     @property
     def env_config(self) -> EnvConfig:
@@ -147,8 +181,8 @@ def build_env(
     ]
     if spec.obs_clip is not None:
         transforms.append(ClipTransform(in_keys=[OBSERVATION_KEY], low=-spec.obs_clip, high=spec.obs_clip))
-    if spec.wind_input == "zero":
-        transforms.append(WindZero())
+    if spec.zeroed_channels:  # one transform, last: every other input stays bit-identical
+        transforms.append(ZeroInputs(spec.zeroed_channels))
     transforms += [RewardSum(in_keys=["reward"], out_keys=["episode_reward"], reset_keys=["_reset"]), StepCounter()]
     env = TransformedEnv(base, Compose(*transforms))
     if vecnorm_state is not None:
@@ -199,21 +233,18 @@ def recipe_estimate_every_s(tau_s: float, log_dt_s: float) -> float:
     return round(ticks * log_dt_s, 9)
 
 
-def policy_ema_tau_s(env_spec: dict, estimator: WindEstimator | None) -> float:
-    """The EMA time constant a policy trained with: its checkpoint's ``env_spec["ema_tau_s"]``, or,
-    for policies saved before the env spec recorded it, the one their estimator's checkpoint held
-    (the env then read it from there), else the default."""
-    if "ema_tau_s" in env_spec:
-        return float(env_spec["ema_tau_s"])
-    recorded = getattr(estimator, "ema_tau_s", None)
-    return DEFAULT_TAU_S if recorded is None else float(recorded)
-
-
-def policy_estimate_every_s(env_spec: dict) -> float:
-    """Seconds between estimator queries a policy trained with: its checkpoint's
-    ``env_spec["estimate_every_s"]``; policies saved before the spec recorded it ran the estimator
-    at every log tick."""
-    return float(env_spec.get("estimate_every_s", DEFAULT_ESTIMATE_EVERY_S))
+def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> dict:
+    """The :class:`RLEnvSpec` settings a saved policy trained with and must fly with, from its
+    checkpoint's ``env_spec``, as ``make_env`` keywords: ``ema_tau_s``, ``estimate_every_s`` and
+    ``zero_inputs``. Policies saved before the spec recorded a setting trained with: the tau their
+    estimator's checkpoint held (the env then read it from there; else the default), the estimator
+    at every log tick, no zeroed inputs."""
+    tau = env_spec["ema_tau_s"] if "ema_tau_s" in env_spec else getattr(estimator, "ema_tau_s", None)
+    return {
+        "ema_tau_s": DEFAULT_TAU_S if tau is None else float(tau),
+        "estimate_every_s": float(env_spec.get("estimate_every_s", DEFAULT_ESTIMATE_EVERY_S)),
+        "zero_inputs": tuple(env_spec.get("zero_inputs", ())),
+    }
 
 
 def find_transform(env: TransformedEnv, cls: type[T]) -> T:
@@ -280,8 +311,7 @@ __all__ = [
     "RLEnvSpec",
     "build_env",
     "make_env",
-    "policy_ema_tau_s",
-    "policy_estimate_every_s",
+    "policy_env_settings",
     "validated_tau_s",
     "find_transform",
     "vecnorm",

@@ -20,11 +20,13 @@ from torchrl.envs.utils import ExplorationType
 from torchrl.record.loggers import Logger
 
 from ..envs.runner import FlightResults
+from ..estimator import WindEstimator
 from ..manifest import command_line, git_commit, platform_info, repo_relative, save_atomic, write_json
 from ..outputs import OutputLock, truncate_scalar_logs
 from ..keys import OBSERVATION_CHANNELS
 from .config import Curriculum, PPOConfig
-from .envs import EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, vecnorm_state_dict, wind_estimate
+from .envs import (EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, policy_env_settings, vecnorm_state_dict,
+                   wind_estimate)
 from .paired import VALIDATION_TAIL_FRACTION, fly_paired, paired_metrics
 from .policy import action_scale, build_actor_critic, policy_payload, spec_to_dict
 from .update import PPOUpdate
@@ -38,7 +40,7 @@ SAVED_BEFORE_FIELD = {"lr_schedule": "constant", "reward_scaling": "none"}
 
 
 class ResumeMismatch(ValueError):
-    """A resumed run's PPO settings differ from its checkpoint's."""
+    """A resumed run's PPO settings, or its policy's inputs, differ from its checkpoint's."""
 
 
 def check_same_recipe(saved: dict, cfg: PPOConfig) -> None:
@@ -52,6 +54,20 @@ def check_same_recipe(saved: dict, cfg: PPOConfig) -> None:
         if (list(before) if isinstance(before, (list, tuple)) else before) != (list(value) if isinstance(value, tuple) else value):
             raise ResumeMismatch(f"resume: PPOConfig.{name}={value!r} but the checkpoint's run used {before!r}; "
                                  f"resume with the run's settings (e.g. --{name.replace('_', '-')} {before}) or start a new --out")
+
+
+def check_same_env(saved: dict, spec: RLEnvSpec, estimator: WindEstimator | None) -> None:
+    """Refuse to resume a checkpoint whose env spec (``saved``) gave the policy other inputs than
+    ``spec`` would: another wind input or another :func:`~quadwind_trl.rl.envs.policy_env_settings`
+    (EMA tau, estimator interval, zeroed inputs), naming the setting and both values."""
+    before = {"wind_input": saved.get("wind_input"), **policy_env_settings(saved, estimator)}
+    now = {"wind_input": spec.wind_input, **policy_env_settings(spec_to_dict(spec), estimator)}
+    for name, value in now.items():
+        # zeroed inputs are a set: the order they were named in changes nothing
+        same = set(value) == set(before[name]) if name == "zero_inputs" else value == before[name]
+        if not same:
+            raise ResumeMismatch(f"resume: RLEnvSpec.{name}={value!r} but the checkpoint's run used {before[name]!r}; "
+                                 f"resume with the run's settings (--{name.replace('_', '-')}) or start a new --out")
 
 
 SELECTION_RULE = (f"the policy of the evaluation with the lowest validation score: mean episode RMSE + mean RMSE of the "
@@ -243,6 +259,7 @@ class PPOTrainer:
         if resume:
             checkpoint = torch.load(self.checkpoint_path, weights_only=True)
             check_same_recipe(checkpoint["ppo_config"], cfg)
+            check_same_env(checkpoint["env_spec"], spec, self.factory.estimator())
             learner.load_state_dict(checkpoint)
             progress = Progress(**checkpoint["progress"])
             torch.random.set_rng_state(checkpoint["rng"])

@@ -3,7 +3,8 @@
 * :class:`WindEstimate`: any frozen estimator (``quadwind_trl.estimator.WindEstimator``) on its
   per-sub-env 10 Hz feature ring + spike-gated EMA -> ``wind_hat`` (north, east);
   ``source="truth"`` writes the true mean wind instead (oracle).
-* :class:`WindZero`: the perception ablation (the policy's two wind inputs forced to 0).
+* :class:`ZeroInputs`: named policy inputs forced to 0 (the ablations: the two wind inputs, or
+  others a policy trains without).
 * :class:`PolicyObservation`: the paper's 23-dim ``observation`` (layout and keys:
   :mod:`quadwind_trl.keys`, wind at ``WIND_INDICES``, looked up by channel name).
 * :class:`EpisodeControl`: de-synchronised first episodes, truncation on request (training).
@@ -15,24 +16,25 @@ Composing them (``quadwind_trl.rl.envs.make_env`` builds the full training stack
     from torchrl.envs import Compose, TransformedEnv
     from quadwind_trl.envs import QuadWindEnv
     from quadwind_trl.estimator import load_estimator
-    from quadwind_trl.transforms import PolicyObservation, RunningObsNorm, WindEstimate, WindZero
+    from quadwind_trl.keys import WIND_CHANNELS
+    from quadwind_trl.transforms import PolicyObservation, RunningObsNorm, WindEstimate, ZeroInputs
 
     env = TransformedEnv(QuadWindEnv(batch_size=[64]), Compose(
         WindEstimate(load_estimator("horizontal")),         # -> wind_hat (north, east)
         PolicyObservation(),                                 # -> observation [23]
         RunningObsNorm(in_keys=["observation"], decay=1.0, reduce_batch_dims=True),
-        WindZero(),                                          # the ablation: wind channels = 0
+        ZeroInputs(WIND_CHANNELS),                           # the ablation: wind channels = 0
     ))
 """
 from .episode import EpisodeControl
 from .normalization import RunningObsNorm
-from .observation import PolicyObservation
-from .wind import WindEstimate, WindZero
+from .observation import PolicyObservation, ZeroInputs
+from .wind import WindEstimate
 
 __all__ = [
     "EpisodeControl",
     "PolicyObservation",
     "RunningObsNorm",
     "WindEstimate",
-    "WindZero",
+    "ZeroInputs",
 ]

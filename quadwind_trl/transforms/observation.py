@@ -1,4 +1,6 @@
-"""The paper's 23-dimensional policy observation (Section "Observation"), built from the sensors.
+"""The paper's 23-dimensional policy observation (Section "Observation"), built from the sensors
+(:class:`PolicyObservation`), and the transform that removes named inputs from it
+(:class:`ZeroInputs`).
 
 =======  ======================  ================================================================
 index    name                    source
@@ -39,9 +41,12 @@ opposite legs, and the heading itself is not among the inputs (the third Euler c
 *relative to the reference heading*, as in the estimator features). So the three horizontal
 vectors (velocity, wind estimate, position error) enter rotated by the measured yaw into
 (forward, left): the same information, still 23 channels, with the wind in two fixed channels for
-``WindZero``. Our first PPO run, with world-frame inputs, learned a policy worse than PD.
+the ablation (:class:`ZeroInputs`). Our first PPO run, with world-frame inputs, learned a policy
+worse than PD.
 """
 from __future__ import annotations
+
+from typing import Sequence
 
 import torch
 from tensordict import TensorDictBase
@@ -50,7 +55,7 @@ from torchrl.envs import Transform
 
 from ..config import GRAVITY_M_S2, EnvConfig
 from ..estimator.features import FeatureExtractor
-from ..keys import MEAS_KEY, OBSERVATION_DIM, OBSERVATION_KEY, WIND_KEY
+from ..keys import MEAS_KEY, OBSERVATION_DIM, OBSERVATION_KEY, WIND_KEY, observation_index
 
 
 def to_heading_frame(east: torch.Tensor, north: torch.Tensor, yaw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -117,3 +122,33 @@ class PolicyObservation(Transform):
             shape=(*observation_spec.shape, OBSERVATION_DIM), device=observation_spec.device
         )
         return observation_spec
+
+
+class ZeroInputs(Transform):
+    """Forces named policy inputs to exactly zero (the input ablations); specs unchanged.
+
+    ``ZeroInputs(channels)`` zeroes those channels (names of
+    :data:`~quadwind_trl.keys.OBSERVATION_CHANNELS`) of ``"observation"``: placed last in the stack
+    (after normalisation and clipping) it makes those inputs exactly 0 and leaves every other one
+    bit-identical. ``ZeroInputs(keys.WIND_CHANNELS)`` is the perception ablation
+    (``wind_input="zero"``); ``RLEnvSpec.zero_inputs`` adds other channels. ``ZeroInputs(None,
+    in_key="wind_hat")`` zeroes a whole entry instead (here the raw estimate, before normalisation).
+    """
+
+    def __init__(self, channels: Sequence[str] | None, *, in_key: str = OBSERVATION_KEY):
+        super().__init__(in_keys=[in_key], out_keys=[in_key])
+        if channels is not None and in_key != OBSERVATION_KEY:
+            raise ValueError(f"ZeroInputs(channels={channels!r}, in_key={in_key!r}): channel names address "
+                             f"{OBSERVATION_KEY!r}; allowed for another entry: channels=None (the whole entry)")
+        self.channels = None if channels is None else tuple(channels)
+        if self.channels is not None:  # a buffer: moves with the transform, no copy per step
+            index = [observation_index(name) for name in self.channels]
+            self.register_buffer("_index", torch.tensor(index), persistent=False)
+
+    def _apply_transform(self, x: torch.Tensor) -> torch.Tensor:
+        if self.channels is None:
+            return torch.zeros_like(x)
+        return x.index_fill(-1, self._index.to(x.device), 0.0)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)

@@ -1,5 +1,5 @@
-"""The wind channels of the policy: the frozen estimator + EMA (``WindEstimate``) and the ablation
-(``WindZero``).
+"""The wind channels of the policy: the frozen estimator + EMA (``WindEstimate``); the ablation
+zeroes them with :class:`~quadwind_trl.transforms.observation.ZeroInputs`.
 
 ``WindEstimate(estimator)`` takes any :class:`~quadwind_trl.estimator.base.WindEstimator` (the
 trained ``EstimatorBundle``, or a user's own class) and keeps a
@@ -32,7 +32,7 @@ import math
 import time
 from dataclasses import replace
 from numbers import Real
-from typing import Literal, Sequence
+from typing import Literal
 
 import torch
 from tensordict import TensorDictBase
@@ -45,7 +45,7 @@ from ..estimator.base import WindEstimator
 from ..estimator.ema import EMAConfig, ema_init, ema_reset_rows, ema_step
 from ..estimator.features import make_extractor
 from ..estimator.ring import FeatureRing
-from ..keys import MEAN_WIND_KEY, OBSERVATION_KEY, WIND_INDICES, WIND_KEY
+from ..keys import MEAN_WIND_KEY, WIND_KEY
 from .reset import reset_mask
 
 
@@ -194,28 +194,3 @@ class WindEstimate(Transform):
             "evaluation.estimation.predict_flights and estimator.ema.ema_scan"
         )
 
-
-class WindZero(Transform):
-    """Forces the wind channels to exactly zero (the perception ablation); specs unchanged.
-
-    ``WindZero()`` zeroes channels :data:`~quadwind_trl.keys.WIND_INDICES` (``wind_fwd``,
-    ``wind_left``) of ``"observation"``: placed last in the stack (after normalisation) it makes the
-    policy's two wind inputs exactly 0 and leaves every other input bit-identical.
-    ``WindZero(in_key="wind_hat", indices=None)`` zeroes the whole raw ``wind_hat`` entry instead.
-    """
-
-    def __init__(self, in_key: str = OBSERVATION_KEY, indices: Sequence[int] | None = None):
-        super().__init__(in_keys=[in_key], out_keys=[in_key])
-        if indices is None and in_key == OBSERVATION_KEY:
-            indices = WIND_INDICES
-        self.indices = None if indices is None else tuple(int(i) for i in indices)
-        if self.indices is not None:  # a buffer: moves with the transform, no copy per step
-            self.register_buffer("_index", torch.tensor(self.indices), persistent=False)
-
-    def _apply_transform(self, x: Tensor) -> Tensor:
-        if self.indices is None:
-            return torch.zeros_like(x)
-        return x.index_fill(-1, self._index.to(x.device), 0.0)
-
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)

@@ -1,0 +1,224 @@
+"""What the wind estimate is worth to the controller (issue 29): the paired ablation's results of
+several training seeds, compared across seeds.
+
+Per training seed the ablation (:mod:`~quadwind_trl.evaluation.ablation`) flies, on the same
+episodes, a wind-aware policy, a policy trained with its wind inputs zeroed (``trained_blind``)
+and, where trained, one trained on the true wind (``trained_oracle``). Per wind level and over all
+episodes this module computes, per seed:
+
+* the value of perception: the paired RMSE reduction of the wind-aware (and the oracle-trained)
+  policy against the trained-blind one (:func:`~quadwind_trl.evaluation.statistics.paired_summary`:
+  episode-level bootstrap 95 % interval and wins);
+* perception's share of the gain over PD, two ways (:func:`~quadwind_trl.evaluation.statistics.decompose`):
+  the paper's *zeroing share* (the blind step is the wind-aware policy with its wind inputs
+  zeroed) and the *trained share* (the blind step is the trained-blind policy);
+
+and across seeds the mean, the range and a Student-t interval over the seed-level values (the
+seed-level interval), and the pooled comparison of the seed-averaged episodes (the
+episode-level interval of the seed ensemble). Policy variants (retrained without some inputs,
+another EMA time constant) are analysed the same way and compared with the base recipe by a
+Welch interval on the difference of the seed means. All outputs are JSON-ready.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping, Sequence
+
+import torch
+from scipy import stats
+from tensordict import TensorDictBase
+from torch import Tensor
+
+from . import paper
+from .ablation import episode_table_from_json
+from .phases import PHASES, phase_rmse
+from .statistics import decompose, paired_summary
+
+METRIC = "rmse_xy"  # the paper's horizontal measure, and the one Table 6 reports for the vertical regime
+LEVEL = 0.95
+# comparison -> (baseline, other): paired on the same episodes, positive when ``other`` tracks better
+COMPARISONS = {
+    "aware_vs_trained_blind": ("trained_blind", "aware"),
+    "trained_oracle_vs_trained_blind": ("trained_blind", "trained_oracle"),
+}
+# share -> the controller of the decomposition's blind step (PD -> blind -> wind-aware): the
+# perception share is (blind - aware) / (PD - aware)
+SHARES = {"zeroing_share": "blind", "trained_share": "trained_blind"}
+# the paper's zeroing share by wind level (its Tables 4 and 6); the OOD sweep has none
+PAPER_BY_WIND = {"horizontal": paper.HORIZONTAL_BY_WIND, "vertical": paper.VERTICAL_BY_WIND}
+
+
+def t_interval(values: Sequence[float], level: float = LEVEL) -> tuple[float, float]:
+    """Student-t interval of the mean of ``values`` (n - 1 degrees of freedom); NaN with fewer
+    than two values."""
+    n = len(values)
+    if n < 2:
+        return math.nan, math.nan
+    x = torch.tensor(values, dtype=torch.float64)
+    half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * x.std().item() / math.sqrt(n)
+    return x.mean().item() - half, x.mean().item() + half
+
+
+def welch_interval(a: Sequence[float], b: Sequence[float], level: float = LEVEL) -> tuple[float, float]:
+    """Welch interval of ``mean(a) - mean(b)`` (two independent sets of seeds, unequal variances);
+    NaN unless both have two values or more."""
+    if len(a) < 2 or len(b) < 2:
+        return math.nan, math.nan
+    ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(level)
+    return float(ci.low), float(ci.high)
+
+
+def across_seeds(per_seed: Mapping[str, float]) -> dict:
+    """Seed count, mean, range and t-interval of the finite seed-level values."""
+    values = [v for v in per_seed.values() if math.isfinite(v)]
+    if not values:
+        return {"n_seeds": 0, "mean": math.nan, "min": math.nan, "max": math.nan, "t_low": math.nan, "t_high": math.nan}
+    low, high = t_interval(values)
+    return {"n_seeds": len(values), "mean": sum(values) / len(values), "min": min(values), "max": max(values),
+            "t_low": low, "t_high": high}
+
+
+def wind_groups(table: TensorDictBase) -> dict[str, Tensor]:
+    """Episode masks per wind level (keyed as the ablation's ``by_wind``) and ``"all"``."""
+    speed = table["wind_speed_ref_m_s"]
+    groups = {f"{k:g}": speed == k for k in speed.unique(sorted=True).tolist()}
+    groups["all"] = torch.ones_like(speed, dtype=torch.bool)
+    return groups
+
+
+def _finite(columns: Sequence[Tensor], mask: Tensor) -> list[Tensor] | None:
+    """The per-episode ``columns`` on the episodes of ``mask`` where all are finite (a phase RMSE
+    is NaN where the episode has no sample in the phase); None where no episode is left."""
+    keep = mask.clone()
+    for column in columns:
+        keep &= column.isfinite()
+    return [column[keep] for column in columns] if bool(keep.any()) else None
+
+
+def seed_values(table: TensorDictBase, column: str = METRIC, resamples: int = 10_000) -> dict[str, dict]:
+    """One seed's episode table: per group of :func:`wind_groups`, the paired summary of every
+    comparison of :data:`COMPARISONS` and every share of :data:`SHARES` whose controllers it flew,
+    on ``<controller>_<column>`` (None where no episode of the group has them all finite)."""
+    keys = set(table.keys())
+    out: dict[str, dict] = {}
+    for group, mask in wind_groups(table).items():
+        row = {}
+        for name, (baseline, other) in COMPARISONS.items():
+            columns = [f"{baseline}_{column}", f"{other}_{column}"]
+            if set(columns) <= keys:
+                pair = _finite([table[c] for c in columns], mask)
+                row[name] = None if pair is None else paired_summary(*pair, resamples=resamples)
+        for name, blind in SHARES.items():
+            columns = [f"{c}_{column}" for c in ("pd", blind, "aware")]
+            if set(columns) <= keys:
+                steps = _finite([table[c] for c in columns], mask)
+                row[name] = None if steps is None else decompose(*steps).perception_share
+        out[group] = row
+    return out
+
+
+def _pooled(tables: Mapping[str, TensorDictBase], baseline: str, other: str, mask: Tensor, resamples: int) -> dict | None:
+    """:func:`paired_summary` of the seed-averaged episodes: each episode's RMSE averaged over the
+    seeds that flew both controllers (the episode-level interval of the seed ensemble)."""
+    flew = [t for t in tables.values() if {baseline, other} <= set(t.keys())]
+    if not flew:
+        return None
+    pair = _finite([torch.stack([t[c] for t in flew]).double().mean(0) for c in (baseline, other)], mask)
+    return None if pair is None else paired_summary(*pair, resamples=resamples)
+
+
+def _check_same_episodes(tables: Mapping[str, TensorDictBase]) -> None:
+    """Seeds are compared episode by episode: every table must list the same cases in one order."""
+    reference_seed, reference = next(iter(tables.items()))
+    for seed, table in tables.items():
+        if table.batch_size != reference.batch_size or not torch.equal(table["case_id"], reference["case_id"]):
+            raise ValueError(f"seed {seed}'s episode table lists other episodes than seed {reference_seed}'s "
+                             f"({table.batch_size[0]} vs {reference.batch_size[0]} episodes): the seeds must fly the same sweep")
+
+
+def summarise_column(tables: Mapping[str, TensorDictBase], column: str, resamples: int = 10_000) -> dict:
+    """Per group: for each comparison its per-seed summaries, the seed-level statistics of their
+    improvements (:func:`across_seeds`) and the pooled summary; for each share its per-seed values
+    and their seed-level statistics."""
+    per_seed = {seed: seed_values(table, column, resamples) for seed, table in tables.items()}
+    groups = wind_groups(next(iter(tables.values())))
+    out: dict[str, dict] = {}
+    for group, mask in groups.items():
+        row = {}
+        for name, (baseline, other) in COMPARISONS.items():
+            seeds = {s: v[group][name] for s, v in per_seed.items() if v[group].get(name) is not None}
+            if seeds:
+                row[name] = {"per_seed": seeds,
+                             "across_seeds": across_seeds({s: b["improvement"] for s, b in seeds.items()}),
+                             "pooled": _pooled(tables, f"{baseline}_{column}", f"{other}_{column}", mask, resamples)}
+        for name in SHARES:
+            seeds = {s: v[group][name] for s, v in per_seed.items() if v[group].get(name) is not None}
+            if seeds:
+                row[name] = {"per_seed": seeds, "across_seeds": across_seeds(seeds)}
+        out[group] = row
+    return out
+
+
+def _with_paper(by_group: dict, sweep: str) -> dict:
+    """Each group's row with the paper's zeroing share beside it (None where the paper has none)."""
+    reference = PAPER_BY_WIND.get(sweep, {})
+    for group, row in by_group.items():
+        ref = reference.get("all" if group == "all" else float(group))
+        row["paper_zeroing_share"] = None if ref is None else ref["perception_share"]
+    return by_group
+
+
+def with_phase_rmse(table: TensorDictBase) -> TensorDictBase:
+    """``table`` with ``<controller>_rmse_xy_<phase>`` (NaN where the episode has no sample in the
+    phase) beside every pair of phase columns the ablation recorded."""
+    for key in [k for k in table.keys() if "_sse_xy_" in k]:
+        controller, phase = key.split("_sse_xy_")
+        table[f"{controller}_{METRIC}_{phase}"] = phase_rmse(table[key], table[f"{controller}_samples_{phase}"]).float()
+    return table
+
+
+def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000) -> dict:
+    """The value of perception on one sweep from each seed's ablation results file (``seed ->
+    the parsed ablation_<sweep>.json``): per wind level and ``"all"`` (:func:`summarise_column`
+    on :data:`METRIC`, the paper's zeroing share beside), and per flight phase where the files
+    hold phase columns (``<controller>_sse_xy_<phase>`` and ``_samples_<phase>``, :mod:`~quadwind_trl.evaluation.phases`)."""
+    if not results:
+        raise ValueError("analyse_sweep: no seeds given")
+    sweeps = {r["sweep"] for r in results.values()}
+    if len(sweeps) > 1:
+        raise ValueError(f"analyse_sweep: the results are of several sweeps {sorted(sweeps)}; one at a time")
+    sweep = sweeps.pop()
+    tables = {seed: with_phase_rmse(episode_table_from_json(r["episodes_table"])) for seed, r in results.items()}
+    _check_same_episodes(tables)
+    keys = set().union(*(t.keys() for t in tables.values()))
+    phases = [p for p in PHASES if f"aware_{METRIC}_{p}" in keys]
+    return {
+        "sweep": sweep,
+        "metric": METRIC,
+        "level": LEVEL,
+        "seeds": list(results),
+        "episodes": next(iter(tables.values())).batch_size[0],
+        "by_wind": _with_paper(summarise_column(tables, METRIC, resamples), sweep),
+        "by_phase": {p: summarise_column(tables, f"{METRIC}_{p}", resamples) for p in phases},
+        # how much of a flight each phase is: the wind-aware policy's samples, per episode and seed
+        "phase_samples_per_episode": {
+            p: torch.cat([t[f"aware_samples_{p}"] for t in tables.values() if f"aware_samples_{p}" in t.keys()]).double().mean().item()
+            for p in phases if f"aware_samples_{p}" in keys},
+    }
+
+
+def variant_change(base: dict, variant: dict, comparison: str = "aware_vs_trained_blind") -> dict:
+    """Per wind group of two :func:`analyse_sweep` results (the base recipe's seeds and a
+    variant's): the variant's seed-mean value of ``comparison`` minus the base's, with a Welch
+    interval over the two sets of seeds (positive: the variant makes perception worth more)."""
+    out = {}
+    for group, row in variant["by_wind"].items():
+        if comparison not in row or comparison not in base["by_wind"].get(group, {}):
+            continue
+        v = [b["improvement"] for b in row[comparison]["per_seed"].values()]
+        b = [x["improvement"] for x in base["by_wind"][group][comparison]["per_seed"].values()]
+        low, high = welch_interval(v, b)
+        out[group] = {"base_mean": sum(b) / len(b), "variant_mean": sum(v) / len(v),
+                      "change": sum(v) / len(v) - sum(b) / len(b), "welch_low": low, "welch_high": high,
+                      "n_base": len(b), "n_variant": len(v)}
+    return out
