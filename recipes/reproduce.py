@@ -13,8 +13,10 @@ stage's wall time, commit and machine load are added to ``pipeline_times.json`` 
 ``results/`` or ``docs/``; ``--full`` writes the shipped artifacts.
 
 ``--full`` trains each regime's policy with five seeds (:data:`SEEDS`), wind-aware and trained
-blind (:data:`POLICY_KINDS`), keeps every seed's policy in ``results/policies/``, flies every
-seed's paired ablation (``results/seeds/seed<k>/``), then ships the median seed of each
+blind (:data:`POLICY_KINDS`), and three oracle-trained horizontal ones (:data:`ORACLE_SEEDS`),
+keeps every seed's policy in ``results/policies/``, flies every seed's paired ablation
+(``results/seeds/seed<k>/``), measures what the estimate is worth across them
+(``perception-value``), then ships the median seed of each
 (``ship-policies``: ``quadwind_trl/checkpoints/policy_<regime>[_trained_blind].pt``, and its
 ablations as ``results/ablation_<sweep>.json``).
 """
@@ -88,22 +90,26 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
                                               str(unseen[r]), "--threads", "1", "--update-checkpoint"),
                 ROOT / "results" / f"estimation_{r}.json") for r in data),
     ]
-    for kind in POLICY_KINDS:
-        for seed in SEEDS:
-            for r in REGIMES:
-                recipe = "ppo_horizontal.py" if r == "horizontal" else "ppo_vertical_curriculum.py"
-                run = policy_run(r, kind, seed)
-                plan.append(Stage(run.name.replace("_", "-"), (recipe, "--out", str(run), "--seed", str(seed), *POLICY_KINDS[kind],
-                                                              "--resume", "--no-progress"), kept_policy(r, kind, seed),
-                                  after=partial(keep_policy, r, kind, seed)))
+    trained = [(r, kind, seed) for kind in POLICY_KINDS for seed in SEEDS for r in REGIMES]
+    trained += [("horizontal", ORACLE_KIND, seed) for seed in ORACLE_SEEDS]
+    for r, kind, seed in trained:
+        recipe = "ppo_horizontal.py" if r == "horizontal" else "ppo_vertical_curriculum.py"
+        run = policy_run(r, kind, seed)
+        plan.append(Stage(run.name.replace("_", "-"), (recipe, "--out", str(run), "--seed", str(seed), *TRAINING_OPTIONS[kind],
+                                                      "--resume", "--no-progress"), kept_policy(r, kind, seed),
+                          after=partial(keep_policy, r, kind, seed)))
     for seed in SEEDS:
-        # each seed's wind-aware and trained-blind policies on all three sweeps, every controller
-        kept = {kind: [str(kept_policy(r, kind, seed)) for r in REGIMES] for kind in POLICY_KINDS}
+        # each seed's wind-aware and trained-blind (and oracle-trained) policies on all three
+        # sweeps, every controller; per regime, so a seed's horizontal flights need no vertical policy
         out = SEED_RESULTS / f"seed{seed}"
-        plan.append(Stage(f"ablation-seed{seed}", ("ablation.py", "--policy", *kept["aware"], "--blind-policy", *kept["trained_blind"],
-                                                   "--results", str(out), "--figures", str(out / "figures")),
-                          out / "ablation_ood.json"))
+        for r, sweeps in (("horizontal", ("horizontal", "ood")), ("vertical", ("vertical",))):
+            oracle = ("--oracle-policy", str(kept_policy(r, ORACLE_KIND, seed))) if r == "horizontal" and seed in ORACLE_SEEDS else ()
+            plan.append(Stage(f"ablation-seed{seed}-{r}", ("ablation.py", "--sweeps", *sweeps, "--policy", str(kept_policy(r, "aware", seed)),
+                                                           "--blind-policy", str(kept_policy(r, "trained_blind", seed)), *oracle,
+                                                           "--results", str(out), "--figures", str(out / "figures")),
+                              out / f"ablation_{sweeps[-1]}.json"))
     plan += [
+        Stage("perception-value", ("perception_value.py",), ROOT / "results" / "perception_value.json"),
         Stage("ship-policies", (), CHECKPOINTS / "policy_vertical_trained_blind.pt", after=ship_median_seeds),
         Stage("pd-baseline", ("pd_baseline.py",), ROOT / "results" / "pd_baseline.json"),
         *(Stage(f"error-budget-{s}", ("error_budget.py", "--sweep", s), ROOT / "results" / f"error_budget_{s}.json")
@@ -118,6 +124,10 @@ SEEDS = (0, 1, 2, 3, 4)  # five per regime and kind (issue 25): the shipped one 
 # the policies trained per regime and seed, with their recipe options: the paper's wind-aware
 # policy, and one trained from scratch with its wind inputs zeroed (the perception baseline)
 POLICY_KINDS = {"aware": (), "trained_blind": ("--wind-input", "zero")}
+# the policy trained on the true mean wind (issue 29: what a perfect estimate is worth to a policy
+# trained with it, against the trained-blind one); three seeds, horizontal, never shipped
+ORACLE_KIND, ORACLE_SEEDS = "trained_oracle", (0, 1, 2)
+TRAINING_OPTIONS = POLICY_KINDS | {ORACLE_KIND: ("--wind-input", "truth")}
 # every seed's policy is kept (about 0.6 MB each) so that each seed's ablation can be re-flown
 SEED_POLICIES = ROOT / "results" / "policies"
 SEED_RESULTS = ROOT / "results" / "seeds"

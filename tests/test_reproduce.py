@@ -58,18 +58,46 @@ def test_quick_reproduce_runs_every_stage(tmp_path):
         assert f"  {name}: bitwise (same platform): 30/30 values bit-identical" in check.stdout, check.stdout
 
 
-def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_path, monkeypatch):
-    """Per regime and policy kind the seed in the middle by its kept policy's validation score is
-    shipped (policy and manifest), never by a test sweep, and the wind-aware median seed's
-    ablations and figures become the headline ones (the OOD sweep follows the horizontal seed)."""
+def _load_reproduce(monkeypatch):
     import importlib.util
-
-    from quadwind_trl.evaluation.figures import ABLATION_FIGURES
 
     spec = importlib.util.spec_from_file_location("reproduce", ROOT / "recipes" / "reproduce.py")
     reproduce = importlib.util.module_from_spec(spec)
     monkeypatch.setitem(sys.modules, "reproduce", reproduce)  # its dataclasses look their module up
     spec.loader.exec_module(reproduce)
+    return reproduce
+
+
+def test_full_plan_flies_each_seeds_own_policies_per_regime(monkeypatch):
+    """Every seed's ablation flies that seed's kept policies of the regime it flies (the
+    oracle-trained one on the horizontal sweeps of the oracle seeds only), and the value of
+    perception is measured after the last ablation, before anything is shipped."""
+    reproduce = _load_reproduce(monkeypatch)
+    plan = {stage.name: stage for stage in reproduce.stages(False, ROOT / "runs" / "quick")}
+    names = list(plan)
+    for seed in reproduce.SEEDS:
+        for regime, sweeps in (("horizontal", ["horizontal", "ood"]), ("vertical", ["vertical"])):
+            args = list(plan[f"ablation-seed{seed}-{regime}"].args)
+            given = lambda flag: args[args.index(flag) + 1] if flag in args else None  # noqa: E731
+            assert args[args.index("--sweeps") + 1:args.index("--policy")] == sweeps
+            assert given("--policy") == str(reproduce.kept_policy(regime, "aware", seed))
+            assert given("--blind-policy") == str(reproduce.kept_policy(regime, "trained_blind", seed))
+            oracle = regime == "horizontal" and seed in reproduce.ORACLE_SEEDS
+            assert given("--oracle-policy") == (str(reproduce.kept_policy(regime, "trained_oracle", seed)) if oracle else None)
+            assert names.index(f"ablation-seed{seed}-{regime}") < names.index("perception-value") < names.index("ship-policies")
+    for seed in reproduce.ORACLE_SEEDS:
+        stage = plan[f"ppo-horizontal-trained-oracle-seed{seed}"]
+        assert stage.args[-4:-2] == ("--wind-input", "truth") and names.index(stage.name) < names.index(f"ablation-seed{seed}-horizontal")
+    assert not any("vertical-trained-oracle" in name for name in names)
+
+
+def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_path, monkeypatch):
+    """Per regime and policy kind the seed in the middle by its kept policy's validation score is
+    shipped (policy and manifest), never by a test sweep, and the wind-aware median seed's
+    ablations and figures become the headline ones (the OOD sweep follows the horizontal seed)."""
+    from quadwind_trl.evaluation.figures import ABLATION_FIGURES
+
+    reproduce = _load_reproduce(monkeypatch)
     for name, path in (("ROOT", tmp_path), ("CHECKPOINTS", tmp_path / "checkpoints"),
                        ("SEED_POLICIES", tmp_path / "policies"), ("SEED_RESULTS", tmp_path / "seeds")):
         monkeypatch.setattr(reproduce, name, path)
