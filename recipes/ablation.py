@@ -39,6 +39,7 @@ from pathlib import Path
 
 import torch
 
+from quadwind_trl.config import MonitorConfig, config_to_dict
 from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import (CONTROLLERS, TRAINED_POLICY_KEYS, episode_table, episode_table_from_json,
                                               fly_controllers, policy_compile_step, policy_env_config, summarize_ablation)
@@ -76,6 +77,9 @@ def main() -> None:
     parser.add_argument("--chunks", default=None, help="with --verify: batches START:STOP of the file's layout (default all)")
     parser.add_argument("--resummarize", type=Path, nargs="+", default=None,
                         help="recompute these results files' tables from their episode tables (flies nothing)")
+    parser.add_argument("--monitor", action="store_true",
+                        help="fly every policy with the runtime monitor (MonitorConfig defaults; docs/rl.md, \"Runtime monitor\"): "
+                             "a deployment option reported beside the raw policy, never a choice")
     parser.add_argument("--eager", action="store_true",
                         help="fly the simulator eagerly (default: as the policy trained, compiled unless it recorded otherwise)")
     args = parser.parse_args()
@@ -125,7 +129,8 @@ def main() -> None:
         # the policy's own airframe: the network checks its channels, the filter models its drag
         estimator = load_estimator(regime, checkpoint("estimator", regime, args.estimator),
                                    config=policy_env_config(payload))
-        scenarios, override = sweep_setup(sweep, args.quick)
+        monitor = MonitorConfig() if args.monitor else None
+        scenarios, override = sweep_setup(sweep, args.quick, monitor)
         compile_step = False if args.eager else policy_compile_step(payload)
         start = time.perf_counter()
         batch = min(args.batch or scenarios.batch_size[0], scenarios.batch_size[0])
@@ -140,7 +145,8 @@ def main() -> None:
         summary.update(command=command_line(sys.argv), git_commit=commit, platform=platform_info(), policy=repo_relative(policy_path),
                        **{key: repo_relative(trained[c]) if c in trained else None for c, key in TRAINED_POLICY_KEYS.items()},
                        estimator=repo_relative(checkpoint("estimator", regime, args.estimator)), quick=args.quick, batch=batch,
-                       estimator_manifest=getattr(estimator, "manifest", {}).get("metrics"), compile_step=compile_step, wall_time_s=time.perf_counter() - start)
+                       estimator_manifest=getattr(estimator, "manifest", {}).get("metrics"), compile_step=compile_step,
+                       monitor=None if monitor is None else config_to_dict(monitor), wall_time_s=time.perf_counter() - start)
         write_json(results_dir / f"ablation_{name}.json", summary)
         if set(figures.FIGURE_CONTROLLERS) <= set(controllers):
             drawn = ", ".join(str(p) for p in figures.ablation_figures(name, scenarios, results, summary, fig_dir))

@@ -173,3 +173,23 @@ def test_validate_policy_recipe_flies_the_policy_and_pd_with_the_monitor(tmp_pat
     assert result["monitor"] == config_to_dict(MonitorConfig()) and result["quick"] and result["episodes"] == 2
     assert {"command", "git_commit", "platform"} <= set(result)
     assert "with the runtime monitor" in capsys.readouterr().out
+
+
+def test_ablation_flies_and_replays_the_monitor_it_records():
+    """``sweep_setup(..., monitor)`` switches the monitor on over the quick flights' change, and a
+    results file's recorded monitor is what its re-flight uses (``replay.flown_monitor``)."""
+    from quadwind_trl.config import EnvConfig, MonitorConfig, config_to_dict
+    from quadwind_trl.evaluation.replay import flown_monitor
+    from quadwind_trl.evaluation.tracking import sweep_setup
+    from quadwind_trl.quick import SWEEP_QUICK
+    from quadwind_trl.regimes import SWEEPS
+
+    monitor = MonitorConfig(hold_s=2.0)
+    _, override = sweep_setup(SWEEPS["ood"], quick=True, monitor=monitor)
+    _, quick_only = sweep_setup(SWEEPS["ood"], quick=True)
+    cfg = override(EnvConfig())
+    assert cfg.residual.monitor == monitor and quick_only(EnvConfig()).residual.monitor is None
+    assert cfg.timing == SWEEP_QUICK.config(EnvConfig()).timing and cfg.trajectories == quick_only(EnvConfig()).trajectories
+    assert sweep_setup(SWEEPS["ood"])[1] is None  # the sweep as designed: no change
+    assert flown_monitor({"monitor": config_to_dict(monitor)}) == monitor
+    assert flown_monitor({}) is None and flown_monitor({"monitor": None}) is None

@@ -21,7 +21,7 @@ from typing import Sequence
 
 import torch
 
-from ..config import EnvConfig
+from ..config import EnvConfig, MonitorConfig, config_from_dict
 from ..envs import QuadWindEnv
 from ..envs.runner import fly
 from ..estimator import load_estimator
@@ -160,6 +160,13 @@ def flown_quick(results: dict) -> bool:
     return bool(results.get("quick", "--quick" in results.get("command", "").split()))
 
 
+def flown_monitor(results: dict) -> MonitorConfig | None:
+    """The runtime monitor an ablation results file flew its policies with (``--monitor``; files
+    without the entry flew none)."""
+    recorded = results.get("monitor")
+    return None if recorded is None else config_from_dict(MonitorConfig, recorded)
+
+
 def verify_ablation(results: dict, chunks: range | None = None, policy_path=None, estimator_path=None
                     ) -> tuple[dict[str, Agreement], int]:
     """Re-fly batches ``chunks`` (default: all) of an ablation results file (``recipes/ablation.py``
@@ -176,7 +183,7 @@ def verify_ablation(results: dict, chunks: range | None = None, policy_path=None
     sweep_name = results["sweep"]
     sweep, regime = SWEEPS[sweep_name], SWEEP_REGIME[sweep_name]
     quick = flown_quick(results)
-    scenarios, override = sweep_setup(sweep, quick)
+    scenarios, override = sweep_setup(sweep, quick, flown_monitor(results))
     policy = _recorded(policy_path or results["policy"])
     # the separately trained policies the file records (files from before a controller existed lack its key)
     trained = {name: _recorded(results[key]) for name, key in TRAINED_POLICY_KEYS.items() if results.get(key) is not None}

@@ -1,12 +1,13 @@
 """Fly evaluation sweeps and tabulate tracking RMSE by wind level and by trajectory."""
 from __future__ import annotations
 
+from functools import partial, reduce
 from typing import Callable
 
 from tensordict import TensorDict, TensorDictBase
 from torchrl.envs import EnvBase
 
-from ..config import EnvConfig
+from ..config import EnvConfig, MonitorConfig, with_monitor
 from ..envs.runner import fly
 from ..envs.trajectories import trajectory_name
 from ..quick import SWEEP_QUICK
@@ -59,11 +60,19 @@ def quick_subset(sweep: EvalSweep, scenarios: TensorDictBase) -> TensorDictBase:
     return SWEEP_QUICK.scenarios(scenarios[keep], sweep.ranges.top_altitude_m)
 
 
-def sweep_setup(sweep: EvalSweep, quick: bool = False) -> tuple[TensorDict, Callable[[EnvConfig], EnvConfig] | None]:
+def sweep_setup(sweep: EvalSweep, quick: bool = False, monitor: MonitorConfig | None = None
+                ) -> tuple[TensorDict, Callable[[EnvConfig], EnvConfig] | None]:
     """The episodes of ``sweep`` and the env-config change to fly them with: the sweep as
     designed (no change), or with ``quick`` its smoke subset on the short flights of
-    :data:`~quadwind_trl.quick.SWEEP_QUICK`."""
+    :data:`~quadwind_trl.quick.SWEEP_QUICK`; with ``monitor``, the runtime monitor switched on
+    (:func:`~quadwind_trl.config.with_monitor`: a trained policy flown with it unretrained; PD's
+    zero residual is left unchanged)."""
     scenarios = sweep.scenarios()
-    if not quick:
+    changes = [SWEEP_QUICK.config] if quick else []
+    if quick:
+        scenarios = quick_subset(sweep, scenarios)
+    if monitor is not None:
+        changes.append(partial(with_monitor, monitor=monitor))
+    if not changes:
         return scenarios, None
-    return quick_subset(sweep, scenarios), SWEEP_QUICK.config
+    return scenarios, lambda cfg: reduce(lambda c, change: change(c), changes, cfg)
