@@ -545,6 +545,11 @@ def config_to_dict(cfg) -> dict:
     return cfg
 
 
+def config_differences(a, b) -> list[str]:
+    """The top-level fields (e.g. ``vehicle``, ``reward``) in which two configs of one dataclass differ."""
+    return [f.name for f in fields(a) if getattr(a, f.name) != getattr(b, f.name)]
+
+
 def config_from_dict(cls, data: dict):
     """Rebuild a (nested) config dataclass from :func:`config_to_dict` output (JSON lists become
     tuples again; unknown keys fail loudly)."""

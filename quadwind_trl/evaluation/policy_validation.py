@@ -24,7 +24,7 @@ vehicle and PD cascade; the summary splits the episodes at a gust margin of zero
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 from typing import Callable, Sequence
@@ -32,7 +32,7 @@ from typing import Callable, Sequence
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-from ..config import EnvConfig, MonitorConfig, with_monitor
+from ..config import EnvConfig, MonitorConfig, config_differences, with_monitor
 from ..envs.envelope import FlightEnvelope, flight_envelope
 from ..envs.runner import FlightResults, scored_samples
 from ..envs.trajectories import fixed_altitude_mask, trajectory_name
@@ -157,11 +157,6 @@ def check_policies(paths: Sequence[str | Path], payloads: Sequence[dict], compil
         if steps[0] != steps[1]:
             raise ValueError(f"{first} trained with compile_step={steps[0]}, {path} with compile_step={steps[1]}: "
                              "PD flies once for all; pass compile_step=False (--eager) to fly every one eagerly")
-
-
-def config_differences(a: EnvConfig, b: EnvConfig) -> list[str]:
-    """The top-level fields (``vehicle``, ``wind``, ...) in which two env configs differ."""
-    return [f.name for f in fields(a) if getattr(a, f.name) != getattr(b, f.name)]
 
 
 def policy_labels(paths: Sequence[str | Path]) -> list[str]:

@@ -7,17 +7,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from dataclasses import replace
 from pathlib import Path
 
 import torch
 
-from ..config import SENSING, with_sensing
+from ..config import SENSING, EnvConfig, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..keys import INPUT_GROUPS, input_channels
 from ..quick import PPO_QUICK
-from ..regimes import regime_config
+from ..regimes import REWARD_W_Z, regime_config
 from .config import LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from .paired import validation_scenarios
@@ -47,6 +48,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--reward-scaling", default=None, choices=list(REWARD_SCALINGS),
                    help="none (the paper, default) or return_std: rewards divided by the running std of the discounted "
                         "return in the PPO update (a recipe candidate; evaluation is unchanged)")
+    p.add_argument("--reward-w-z", type=reward_weight, default=None, metavar="BETA",
+                   help=f"the reward's height-error weight beta (default the regime's: {REWARD_W_Z[regime]:g}, the paper's; "
+                        "recorded in the policy's env config, so evaluation flies the same physics)")
     p.add_argument("--out", default=None, help=f"run directory (default runs/ppo_{regime}[_quick])")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
@@ -80,6 +84,17 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     return p
 
 
+def reward_weight(text: str) -> float:
+    """A reward weight from the command line: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--reward-w-z={text!r}: expected a number >= 0") from None
+    if not math.isfinite(value) or value < 0:
+        raise argparse.ArgumentTypeError(f"--reward-w-z={text}: allowed range: finite, >= 0")
+    return value
+
+
 def quick_setup(regime: str, spec: RLEnvSpec) -> tuple[RLEnvSpec, PPOConfig, list[str]]:
     """The ``--quick`` run: the regime's short flights (:data:`~quadwind_trl.quick.PPO_QUICK`),
     8 envs, 4 tiny iterations."""
@@ -96,6 +111,11 @@ def quick_setup(regime: str, spec: RLEnvSpec) -> tuple[RLEnvSpec, PPOConfig, lis
     return spec, cfg, changes
 
 
+def with_reward_w_z(config: EnvConfig, w_z: float | None) -> EnvConfig:
+    """``config`` with the reward's height weight ``w_z`` (None: unchanged, the regime's preset)."""
+    return config if w_z is None else replace(config, reward=replace(config.reward, w_z=w_z))
+
+
 def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> dict:
     """Build the env spec, PPO config, evaluation set and (vertical) curriculum from ``args``;
     train; print and return the final manifest."""
@@ -103,7 +123,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     try:
         spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                         config=with_sensing(regime_config(regime), args.sensing), compile_step=not args.eager,
+                         config=with_reward_w_z(with_sensing(regime_config(regime), args.sensing), args.reward_w_z),
+                         compile_step=not args.eager,
                          zero_inputs=input_channels(args.zero_inputs))
     except ValueError as err:  # a bad setting (e.g. --zero-inputs tilt): the message names the allowed values
         raise SystemExit(f"error: {err}") from None

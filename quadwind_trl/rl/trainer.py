@@ -19,6 +19,7 @@ from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType
 from torchrl.record.loggers import Logger
 
+from ..config import EnvConfig, config_differences, config_from_dict
 from ..envs.runner import FlightResults
 from ..estimator import WindEstimator
 from ..manifest import command_line, git_commit, platform_info, repo_relative, save_atomic, write_json
@@ -59,7 +60,12 @@ def check_same_recipe(saved: dict, cfg: PPOConfig) -> None:
 def check_same_env(saved: dict, spec: RLEnvSpec, estimator: WindEstimator | None) -> None:
     """Refuse to resume a checkpoint whose env spec (``saved``) gave the policy other inputs than
     ``spec`` would: another wind input or another :func:`~quadwind_trl.rl.envs.policy_env_settings`
-    (EMA tau, estimator interval, zeroed inputs), naming the setting and both values."""
+    (EMA tau, estimator interval, zeroed inputs), naming the setting and both values; or another
+    env config (vehicle, sensing, reward, ...), naming its differing fields."""
+    differ = config_differences(config_from_dict(EnvConfig, saved["env_config"]), spec.env_config)
+    if differ:
+        raise ResumeMismatch(f"resume: the env config differs from the checkpoint's run in {', '.join(differ)} "
+                             "(e.g. --sensing, --reward-w-z); resume with the run's settings or start a new --out")
     before = {"wind_input": saved.get("wind_input"), **policy_env_settings(saved, estimator)}
     now = {"wind_input": spec.wind_input, **policy_env_settings(spec_to_dict(spec), estimator)}
     for name, value in now.items():
