@@ -503,8 +503,11 @@ def test_paper_grid_episodes_pick_the_nearest_length_scale_and_their_own_cube(gr
 
 
 @pytest.mark.parametrize("layout", ["full", "paper_grid"])
-def test_a_row_alone_and_in_a_large_batch_gives_bitwise_identical_wind(layout):
-    atm = Atmosphere(WindProfileConfig(), TurbulenceConfig(layout=layout))
+def test_a_row_alone_and_in_a_large_batch_gives_bitwise_identical_wind(layout, request):
+    # the paper grid's atmosphere is the module's (the same construction; building its cube bank
+    # again cost 8 s of CPU): nothing here or in the tests sharing it changes it
+    atm = (request.getfixturevalue("grid_atmosphere") if layout == "paper_grid"
+           else Atmosphere(WindProfileConfig(), TurbulenceConfig(layout=layout)))
     big = sample_regimes(700, RegimeRanges(), seed=21)
     order = torch.randperm(700, generator=torch.Generator().manual_seed(6))
     rows = [3, 350, 699]

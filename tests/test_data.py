@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from filelock import FileLock
 from scipy import stats
 from tensordict.memmap import MemoryMappedTensor
 
@@ -47,16 +48,46 @@ def tiny_spec(seed: int = 5) -> GenerationSpec:
     return GenerationSpec(regime="horizontal", cases=2, seed=seed, config=cfg, ranges=RegimeRanges(altitude_m=(10.0, 14.0)))
 
 
+# the flights of micro_spec: armed at once, a short climb blend to 1-1.5 m, a 0.5 s pattern, and the
+# unflown vertical and hover tables short (tables are built once per configuration and process;
+# tests/test_outputs.py flies the same ones)
+MICRO_TRAJECTORIES = replace(TrajectoryConfig(), horizontal_duration_s=0.5, arm_time_s=0.1, climb_blend_s=0.5,
+                             vertical_top_m=10.0, hover_duration_s=1.0)
+
+
 def micro_spec(seed: int = 9) -> GenerationSpec:
-    """5 flights of about 7 s: for the tests that generate more than once."""
-    cfg = replace(EnvConfig(), trajectories=replace(TrajectoryConfig(), horizontal_duration_s=1.0))
-    return GenerationSpec(regime="horizontal", cases=1, seed=seed, config=cfg, ranges=RegimeRanges(altitude_m=(5.0, 6.0)))
+    """5 flights of under 2 s: for the tests that generate more than once. What they check (the
+    same bytes at any batch, chunked commits, interruption, resume) does not depend on how long a
+    flight is, their cost does (with flights of about 7 s they took about 100 s of CPU)."""
+    cfg = replace(EnvConfig(), trajectories=MICRO_TRAJECTORIES)
+    return GenerationSpec(regime="horizontal", cases=1, seed=seed, config=cfg, ranges=RegimeRanges(altitude_m=(1.0, 1.5)))
+
+
+def generated_once(tmp_path_factory, name: str, spec: GenerationSpec, max_batch: int) -> Path:
+    """A dataset generated once per run for the tests that only read it: under pytest-xdist the
+    first worker to need it generates it, the others wait and read the same files (as a plain
+    module fixture, every worker that ran one of its tests generated its own)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # this run's directory, above each worker's own
+    out = (root / f"shared_{name}" / name).resolve()
+    out.parent.mkdir(exist_ok=True)
+    with FileLock(out.parent / "fixture.lock"):  # not generate_dataset's own lock: that one refuses, this one waits
+        if not out.exists():
+            generate_dataset(out, spec, max_batch=max_batch, progress=False)
+    return out
 
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("ds") / "tiny"
-    return generate_dataset(out, tiny_spec(), max_batch=10, progress=False)
+    return generated_once(tmp_path_factory, "tiny", tiny_spec(), max_batch=10)
+
+
+@pytest.fixture(scope="module")
+def micro_at_batch3(tmp_path_factory) -> Path:
+    """:func:`micro_spec` generated uninterrupted at batch 3 (chunks of 3 and 2): the reference of
+    both the batch-independence and the resume test (generated once for the two)."""
+    return generated_once(tmp_path_factory, "whole", micro_spec(), max_batch=3)
 
 
 def data_files(root: Path) -> list[Path]:
@@ -84,9 +115,9 @@ def test_dataset_layout(tiny):
     assert not bool(data["crashed"].any())
 
 
-def test_generation_is_deterministic_and_batch_independent(tmp_path):
+def test_generation_is_deterministic_and_batch_independent(tmp_path, micro_at_batch3):
     first = generate_dataset(tmp_path / "first", micro_spec(), max_batch=5, progress=False)
-    again = generate_dataset(tmp_path / "again", micro_spec(), max_batch=3, progress=False)
+    again = micro_at_batch3  # the same spec in chunks of 3 and 2
     files = data_files(first)
     assert files == data_files(again)
     assert sum(str(f).endswith(".memmap") for f in files) > 20
@@ -99,7 +130,7 @@ class Interrupt(Exception):
     pass
 
 
-def test_interrupted_generation_never_loads_and_resumes(tmp_path):
+def test_interrupted_generation_never_loads_and_resumes(tmp_path, micro_at_batch3):
     out = tmp_path / "cut"
 
     def stop(i):
@@ -120,11 +151,11 @@ def test_interrupted_generation_never_loads_and_resumes(tmp_path):
     chunks = []
     generate_dataset(out, micro_spec(), max_batch=3, progress=False, resume=True, after_chunk=chunks.append)
     assert len(chunks) == 1  # the first chunk was not flown again
-    whole = generate_dataset(tmp_path / "whole", micro_spec(), max_batch=3, progress=False)
+    whole = micro_at_batch3  # the uninterrupted run at the same batch
     files = data_files(whole)
     _, mismatch, errors = filecmp.cmpfiles(out, whole, [str(f) for f in files], shallow=False)
     assert mismatch == [] and errors == [] and files == data_files(out)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["cut", "whole"]
+    assert [p.name for p in tmp_path.iterdir()] == ["cut"]  # no partial left beside it
 
 
 def test_interruption_before_a_chunk_removes_the_partial_and_other_specs_do_not_resume(tmp_path):

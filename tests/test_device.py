@@ -39,7 +39,10 @@ def test_env_flies_on_cuda_as_on_cpu():
 def test_ppo_trains_on_cuda(tmp_path):
     from dataclasses import replace
 
-    spec = replace(hover_spec(duration_s=1.0), device="cuda")
+    from quadwind_trl.rl.envs import DEFAULT_ESTIMATE_EVERY_S
+
+    # the estimator at every tick, as the recipes run it (test_ppo.py's trainer tests query it once a second)
+    spec = replace(hover_spec(duration_s=1.0), device="cuda", estimate_every_s=DEFAULT_ESTIMATE_EVERY_S)
     cfg = PPOConfig(total_frames=2 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
                     eval_every_frames=0)
     res = PPOTrainer(spec, cfg, tmp_path / "run", progress=False).train()

@@ -25,12 +25,16 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def hover_spec(seed: int = 0, duration_s: float = 3.0) -> RLEnvSpec:
-    """An easy task: station keeping at 10 m from an airborne start, short episodes."""
+    """An easy task: station keeping at 10 m from an airborne start, short episodes. The estimator
+    stays in the loop but is queried once a second (at each episode's first tick, and every 10th
+    after): what the trainer tests here check (counters, checkpoints, resume, the schedule, the
+    kept policy) does not depend on how often the estimate is refreshed, and queried at every tick
+    the estimator was a large part of their CPU. (test_ppo_trains_on_cuda sets every tick back.)"""
     cfg = regime_config("horizontal")
     cfg = replace(cfg, trajectories=replace(cfg.trajectories, hover_duration_s=duration_s))
     ranges = replace(DEFAULT_RANGES["horizontal"], altitude_m=(10.0, 10.0))
     return RLEnvSpec("horizontal", untrained_estimator=True, config=cfg, start="pattern", trajectories=("hover",),
-                     ranges=ranges, seed=seed, compile_step=False)  # fmt: skip
+                     ranges=ranges, seed=seed, compile_step=False, estimate_every_s=1.0)  # fmt: skip
 
 
 def test_estimator_gets_no_gradient_and_stays_unchanged_through_a_ppo_update():
@@ -64,9 +68,15 @@ def test_estimator_gets_no_gradient_and_stays_unchanged_through_a_ppo_update():
     assert all(torch.equal(before[k], after[k]) for k in before)
 
 
+# the trainer tests' batches: 4 envs x 8 decisions, two minibatches of 16 an epoch. What they check
+# (counters, checkpoints, resume, the schedule, the kept policy) does not depend on a batch's length;
+# their cost does: flying was most of it (they flew 4 x 32 decisions, minibatches of 64)
+STEPS, BATCH, MINIBATCH = 8, 4 * 8, 16
+
+
 def test_trainer_keeps_the_policy_of_its_best_validation_evaluation(tmp_path):
     spec = hover_spec(duration_s=1.0)
-    cfg = PPOConfig(total_frames=3 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
+    cfg = PPOConfig(total_frames=3 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
                     lr=3e-2, eval_every_frames=1, checkpoint_every_frames=10**9)
     sc = validation_scenarios("horizontal", 2)
     sc.update({"traj_id": torch.tensor([9, 9]), "altitude_m": torch.tensor([10.0, 10.0]), "start_step": torch.tensor([-1, -1])})
@@ -94,14 +104,14 @@ def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
     second update and resumed logs and uses the planned rate at every update; a resume under other
     PPO settings or other policy inputs is refused, one that only runs longer on more threads is not."""
     spec = hover_spec(duration_s=1.0)
-    cfg = PPOConfig(total_frames=4 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
+    cfg = PPOConfig(total_frames=4 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
                     lr=1e-3, lr_schedule="linear", eval_every_frames=0, checkpoint_every_frames=1)
     planned = [1e-3, 7.5e-4, 5e-4, 2.5e-4]  # one per update; 0 is reached only as the run ends
-    assert [cfg.lr_at(f) for f in (0, 128, 256, 384, 512)] == pytest.approx(planned + [0.0])
+    assert [cfg.lr_at(f) for f in (0, BATCH, 2 * BATCH, 3 * BATCH, 4 * BATCH)] == pytest.approx(planned + [0.0])
     assert PPOConfig(lr_schedule="constant").lr_at(10**6) == PPOConfig().lr  # the paper's constant rate
 
     def interrupt_after_second(metrics: dict) -> None:
-        if metrics["frames"] == 256:
+        if metrics["frames"] == 2 * BATCH:
             raise Interrupt
 
     run = tmp_path / "run"
@@ -119,7 +129,7 @@ def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
     with pytest.raises(ResumeMismatch, match=r"RLEnvSpec\.zero_inputs=\('roll',\) but the checkpoint's run used \(\)"):
         PPOTrainer(replace(spec, zero_inputs=("roll",)), cfg, run, progress=False).train(resume=True)
     # longer, on more threads: the same recipe
-    PPOTrainer(spec, replace(cfg, total_frames=5 * 128, threads=2), run, progress=False).train(resume=True)
+    PPOTrainer(spec, replace(cfg, total_frames=5 * BATCH, threads=2), run, progress=False).train(resume=True)
     # a checkpoint saved before the field existed ran the paper's constant rate
     old = torch.load(latest, weights_only=True)
     del old["ppo_config"]["lr_schedule"]
@@ -165,27 +175,27 @@ def test_curriculum_stages():
 
 def test_trainer_checkpoints_resumes_and_exports(tmp_path):
     spec = hover_spec(duration_s=1.0)
-    cfg = PPOConfig(total_frames=2 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
+    cfg = PPOConfig(total_frames=2 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
                     eval_every_frames=0, checkpoint_every_frames=1)
     out = tmp_path / "run"
     sc = validation_scenarios("horizontal", 1)
     sc.update({"traj_id": torch.tensor([9]), "altitude_m": torch.tensor([10.0]), "start_step": torch.tensor([-1])})
     res = PPOTrainer(spec, cfg, out, eval_scenarios=sc, progress=False).train()
-    assert res.frames == 256 and res.iterations == 2 and len(res.history) == 2
+    assert res.frames == 2 * BATCH and res.iterations == 2 and len(res.history) == 2
     for name in ("policy.pt", "policy.json", "config.json", "checkpoints/latest.pt", "checkpoints/latest.json"):
         assert (out / name).exists(), name
     manifest = json.loads((out / "policy.json").read_text())
     assert {"improvement_vs_pd", "win_rate", "rmse_xy", "rmse_z"} <= set(manifest["metrics"])
-    assert manifest["estimator"]["untrained"] and manifest["ppo_config"]["minibatch"] == 64
+    assert manifest["estimator"]["untrained"] and manifest["ppo_config"]["minibatch"] == MINIBATCH
     scalars = out / "logs" / "ppo" / "scalars"
     assert len((scalars / "train" / "reward_mean.csv").read_text().splitlines()) == 2
     assert (scalars / "eval" / "improvement_vs_pd.csv").exists()
     with pytest.raises(FileExistsError):
         PPOTrainer(spec, cfg, out, progress=False).train()
     # resume to twice the frames: continues from the checkpoint's counters
-    cfg2 = replace(cfg, total_frames=4 * 4 * 32)
+    cfg2 = replace(cfg, total_frames=4 * BATCH)
     res2 = PPOTrainer(spec, cfg2, out, progress=False).train(resume=True)
-    assert res2.frames == 512 and res2.iterations == 4 and len(res2.history) == 2
+    assert res2.frames == 4 * BATCH and res2.iterations == 4 and len(res2.history) == 2
 
     # the exported policy + frozen normalisation fly deterministic evaluations
     actor, payload = load_policy(out / "policy.pt")
@@ -195,7 +205,7 @@ def test_trainer_checkpoints_resumes_and_exports(tmp_path):
     r = fly(env, sc, policy=actor)
     assert torch.isfinite(r.rmse).all() and torch.equal(loc, vecnorm(env).loc["observation"])
     ck = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)
-    assert ck["progress"]["frames"] == 512
+    assert ck["progress"]["frames"] == 4 * BATCH
 
 
 def _run_recipe(script: str, tmp_path: Path, *extra: str) -> dict:
@@ -325,16 +335,16 @@ def test_return_scale_divides_rewards_by_the_running_std_of_the_discounted_retur
 
 def test_reward_scaling_state_is_checkpointed(tmp_path):
     spec = hover_spec(duration_s=1.0)
-    cfg = PPOConfig(total_frames=2 * 4 * 32, num_envs=4, steps_per_env=32, epochs=1, minibatch=64, hidden=(32, 32),
+    cfg = PPOConfig(total_frames=2 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
                     reward_scaling="return_std", eval_every_frames=0, checkpoint_every_frames=1)
     out = tmp_path / "run"
     PPOTrainer(spec, cfg, out, progress=False).train()
     state = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)["return_scale"]
-    assert float(state["count"]) == 2 * 4 * 32 and float(state["m2"]) > 0
+    assert float(state["count"]) == 2 * BATCH and float(state["m2"]) > 0
     rows = (out / "logs" / "ppo" / "scalars" / "train" / "return_std.csv").read_text().split()
     assert len(rows) == 2 and all(float(r.split(",")[1]) > 0 for r in rows)
-    more = replace(cfg, total_frames=3 * 4 * 32)
+    more = replace(cfg, total_frames=3 * BATCH)
     trainer = PPOTrainer(spec, more, out, progress=False)
     trainer.train(resume=True)
     state = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)["return_scale"]
-    assert float(state["count"]) == 3 * 4 * 32  # continued, not restarted
+    assert float(state["count"]) == 3 * BATCH  # continued, not restarted
