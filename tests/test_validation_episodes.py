@@ -10,7 +10,6 @@ import copy
 import importlib.util
 import json
 import sys
-from functools import partial
 from pathlib import Path
 
 import pytest
@@ -18,7 +17,7 @@ import torch
 from tensordict import TensorDict
 
 import quadwind_trl.evaluation.policy_validation as pv
-from quadwind_trl.config import EnvConfig, MonitorConfig, with_monitor
+from quadwind_trl.config import MonitorConfig
 from quadwind_trl.envs.envelope import flight_envelope
 from quadwind_trl.envs.trajectories import trajectory_name
 from quadwind_trl.envs.simulator import trajectory_library
@@ -43,22 +42,16 @@ QUICK = {"horizontal": QuickFlights(pattern_s=1.0, altitude_m=PPO_QUICK["horizon
 
 
 def old_validate_policy(policy_path, *, monitor, episodes, quick, compile_step):
-    """``validate_policy`` as it was before several policies could fly (its code, verbatim but for
-    ``QUICK``): PD and the policy in one ``fly_controllers`` call; the metrics and the flights."""
+    """``validate_policy`` as it was before several policies could fly: PD and the policy in one
+    ``fly_controllers`` call, in the policy's own env; the metrics and the flights. The episodes
+    and the env change are ``validation_setup``'s (with ``QUICK``), which the old code built the
+    same way: what differs is only how PD is flown."""
     payload = load_policy(policy_path)[1]
     spec = payload["env_spec"]
     regime = spec["regime"]
-    scenarios = validation_scenarios(regime, episodes)
-    changes = [partial(with_monitor, monitor=monitor)] if monitor is not None else []
-    if quick:
-        scenarios = QUICK[regime].scenarios(scenarios, DEFAULT_RANGES[regime].top_altitude_m)
-        changes.append(QUICK[regime].config)
-
-    def override(config: EnvConfig) -> EnvConfig:
-        for change in changes:
-            config = change(config)
-        return config
-
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pv, "PPO_QUICK", QUICK)
+        scenarios, override = pv.validation_setup(regime, episodes, quick, monitor)
     config = override(policy_env_config(payload))
     wind_input = spec.get("wind_input", "estimate")
     controller = next(c for c in POLICY_CONTROLLERS if WIND_INPUT[c] == wind_input)
