@@ -53,14 +53,20 @@ VERTICAL_RL = RegimeRanges(
 )
 
 # RL task presets (paper, Eq. 2 and Section "Training regimes")
-REWARD_W_Z = {"horizontal": 1.0, "vertical": 0.5}  # paper: beta
+# The paper's beta is 1.0 horizontal and 0.5 vertical ("an equal weighting would let vertical error
+# dominate"). Vertical here uses 1.0: in this vehicle PD's height error is smaller than its xy error,
+# and at thrust saturation a weight of 0.5 let the policies trade height for xy through extra tilt
+# until one wind case crashed; chosen on the validation sweep over three seeds (docs/rl.md,
+# "Where the vertical loss comes from"). The paper's 0.5 stays one flag away: --reward-w-z 0.5.
+REWARD_W_Z = {"horizontal": 1.0, "vertical": 1.0}
+PAPER_REWARD_W_Z = {"horizontal": 1.0, "vertical": 0.5}  # paper: beta
 # one policy decision per 10 Hz log tick, when the wind estimate updates (docs/rl.md: why)
 POLICY_HOLD_STEPS = 10
 
 
 def regime_config(regime: str, base: EnvConfig | None = None, hold_control_steps: int = POLICY_HOLD_STEPS) -> EnvConfig:
-    """``base`` (default ``EnvConfig()``) with the regime's reward weight ``w_z`` (paper: 1.0
-    horizontal, 0.5 vertical) and the policy's decision period ``hold_control_steps`` (control
+    """``base`` (default ``EnvConfig()``) with the regime's reward weight ``w_z`` (:data:`REWARD_W_Z`;
+    the paper's in :data:`PAPER_REWARD_W_Z`) and the policy's decision period ``hold_control_steps`` (control
     steps per env step, ``TimingConfig.hold_control_steps``)."""
     if regime not in REWARD_W_Z:
         raise ValueError(f"regime={regime!r}; allowed: {', '.join(repr(r) for r in REWARD_W_Z)}")

@@ -22,10 +22,10 @@ def test_the_regime_preset_stays_unless_the_weight_is_given(regime):
     config = regime_config(regime)
     assert args.reward_w_z is None and with_reward_w_z(config, args.reward_w_z) is config
     assert config.reward.w_z == REWARD_W_Z[regime]
-    given = build_parser(regime, "").parse_args(["--reward-w-z", "1"])
+    given = build_parser(regime, "").parse_args(["--reward-w-z", "0.25"])  # neither regime's preset
     changed = with_reward_w_z(config, given.reward_w_z)
-    assert changed.reward.w_z == 1.0 and replace(changed, reward=config.reward) == config  # nothing else moves
-    assert TrackingTask(changed).reward.w_z == 1.0  # the task the env asks for its reward reads it
+    assert changed.reward.w_z == 0.25 and replace(changed, reward=config.reward) == config  # nothing else moves
+    assert TrackingTask(changed).reward.w_z == 0.25  # the task the env asks for its reward reads it
 
 
 @pytest.mark.parametrize("text, message", [("-0.5", r"--reward-w-z=-0.5: allowed range: finite, >= 0"),
@@ -38,9 +38,9 @@ def test_a_bad_weight_is_refused_naming_the_option_and_range(text, message, caps
 
 
 def test_the_weight_is_recorded_and_a_resume_under_another_is_refused():
-    spec = RLEnvSpec(regime="vertical", untrained_estimator=True, config=with_reward_w_z(regime_config("vertical"), 1.0))
+    spec = RLEnvSpec(regime="vertical", untrained_estimator=True, config=with_reward_w_z(regime_config("vertical"), 0.5))
     saved = spec_to_dict(spec)
-    assert saved["env_config"]["reward"]["w_z"] == 1.0
+    assert saved["env_config"]["reward"]["w_z"] == 0.5
     check_same_env(saved, spec, None)  # the same run resumes
     with pytest.raises(ResumeMismatch, match=r"env config differs from the checkpoint's run in reward \(e\.g\. "
                                              r"--sensing, --reward-w-z\)"):

@@ -18,7 +18,7 @@ from ..config import SENSING, EnvConfig, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..keys import INPUT_GROUPS, input_channels
 from ..quick import PPO_QUICK
-from ..regimes import REWARD_W_Z, regime_config
+from ..regimes import PAPER_REWARD_W_Z, REWARD_W_Z, regime_config
 from .config import LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from .paired import validation_scenarios
@@ -49,7 +49,8 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
                    help="none (the paper, default) or return_std: rewards divided by the running std of the discounted "
                         "return in the PPO update (a recipe candidate; evaluation is unchanged)")
     p.add_argument("--reward-w-z", type=reward_weight, default=None, metavar="BETA",
-                   help=f"the reward's height-error weight beta (default the regime's: {REWARD_W_Z[regime]:g}, the paper's; "
+                   help=f"the reward's height-error weight beta (default the regime's: {REWARD_W_Z[regime]:g}, chosen on validation, "
+                        f"docs/rl.md; the paper's: {PAPER_REWARD_W_Z[regime]:g}); "
                         "recorded in the policy's env config, so evaluation flies the same physics)")
     p.add_argument("--out", default=None, help=f"run directory (default runs/ppo_{regime}[_quick])")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")

@@ -71,7 +71,7 @@ def check_regime(regime: str) -> None:
 class RLEnvSpec:
     """Everything that defines an RL env, as plain values (picklable; the estimator by path)."""
 
-    regime: Regime = "horizontal"  # "horizontal" (HORIZONTAL_RL, w_z = 1) or "vertical" (VERTICAL_RL, w_z = 0.5)
+    regime: Regime = "horizontal"  # "horizontal" (HORIZONTAL_RL) or "vertical" (VERTICAL_RL); w_z: regimes.REWARD_W_Z
     num_envs: int = 64
     # "estimate" (paper), "zero" (the ablation: the policy's wind inputs forced to 0) or "truth" (oracle)
     wind_input: WindInput = "estimate"
