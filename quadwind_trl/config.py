@@ -264,6 +264,9 @@ class WindProfileConfig:
             raise ValueError(f"WindProfileConfig.cap_applies_to={self.cap_applies_to!r}; allowed: 'mean', 'total'")
 
 
+TURBULENCE_LAYOUTS = ("full", "paper_grid")  # TurbulenceConfig.layout
+
+
 @dataclass(frozen=True)
 class TurbulenceConfig:
     """Spectral-mode von Karman turbulence (TurboGenPY-style); docs/atmosphere.md section 2.
@@ -301,8 +304,8 @@ class TurbulenceConfig:
     stability_ratios: tuple[tuple[float, float], ...] = ((0.80, 0.52), (0.75, 0.45), (0.95, 0.80))
 
     def validate(self) -> None:
-        if self.layout not in ("full", "paper_grid"):
-            raise ValueError(f"TurbulenceConfig.layout={self.layout!r}; allowed: 'full', 'paper_grid'")
+        if self.layout not in TURBULENCE_LAYOUTS:
+            raise ValueError(f"TurbulenceConfig.layout={self.layout!r}; allowed: {', '.join(map(repr, TURBULENCE_LAYOUTS))}")
         if self.anisotropy not in ("stretch", "local_scaling"):
             raise ValueError(f"TurbulenceConfig.anisotropy={self.anisotropy!r}; allowed: 'stretch', 'local_scaling'")
         _check_range("TurbulenceConfig", "num_modes", self.num_modes, 1, 100_000)

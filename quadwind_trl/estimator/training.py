@@ -183,6 +183,7 @@ def load_estimator_data(
         "cases": manifest["cases"],
         "seed": manifest["seed"],
         "num_flights": manifest["num_flights"],
+        "turbulence_layout": manifest["config"]["turbulence"]["layout"],  # which field the flights flew through
         "split_fractions": list(fractions),
         "split_cases": {k: int(v.numel()) for k, v in wd.split_cases.items()},
         "split_windows": {k: int(v.shape[0]) for k, v in wd.tables.items()},

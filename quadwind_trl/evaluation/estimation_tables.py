@@ -82,35 +82,50 @@ def floor_table(columns: dict[str, dict], estimates: dict[str, dict]) -> str:
                   "flight mean", "estimator per-flight"], rows)  # fmt: skip
 
 
-def sweep_table(sweep: dict[float, dict], best: float, paper: float) -> str:
+def sweep_table(sweep: dict[float, dict], best: float, paper: float, deployed: bool = True) -> str:
     rows = []
     for tau, m in sweep.items():
         name = "raw" if tau == 0 else f"{tau:g}"
-        mark = (" (best: deployed)" if tau == best else "") + (" (paper's)" if tau == paper else "")
+        mark = ((" (best: deployed)" if deployed else " (best)") if tau == best else "") + (" (paper's)" if tau == paper else "")
         rows.append([name + mark, fmt(m["per_window_vector_rmse"], 3), fmt(m["direction_mae_deg"], 2),
                      fmt(m.get("per_flight_vector_rmse"), 3), fmt(m["corr_n"], 4), fmt(m["corr_e"], 4)])  # fmt: skip
     return table(["tau (s)", "per-window RMSE (m/s)", "dir. MAE (deg)", "per-flight RMSE (m/s)", "corr N", "corr E"], rows)
 
 
+def estimator_description(checkpoint: str | Path, manifest: dict) -> str:
+    """Which estimator the section evaluates: a trained checkpoint (its best epoch, training time)
+    or a model-based one (``manifest["model_based"]``: no training; its model error)."""
+    if "model_based" in manifest:
+        cfg = manifest["config"]
+        return (f"Model-based estimator `{manifest['model_based']}` (`--checkpoint {checkpoint}`): no training and no "
+                f"checkpoint; the dataset's airframe with model error drag_scale {cfg['drag_scale']:g} (its C_dA / the true one) "
+                f"and mass_scale {cfg['mass_scale']:g} (its mass / the true one)")
+    return (f"Checkpoint `{repo_relative(checkpoint)}` (best epoch {manifest.get('best_epoch', '?')}, trained in "
+            f"{manifest.get('metrics', {}).get('wall_time_s', '?')} s)")
+
+
 def estimation_markdown(run: EstimationRun, figs: dict[str, Path], checkpoint: str | Path, manifest: dict,
                         link_base: str | Path, json_path: str | Path) -> str:
     """The regime's section: summary, turbulence floor, breakdowns, EMA sweep, unseen design,
-    figure links (relative to ``link_base``); ``manifest`` is the checkpoint's."""
+    figure links (relative to ``link_base``); ``manifest`` is the checkpoint's, or for a
+    model-based estimator ``{"model_based": class name, "config": its settings}``."""
     results, regime, deployed = run.results, run.regime, run.tau_best
     info, unseen = results["data"], run.unseen
+    # only a checkpoint records its validation-best tau for the PPO recipes (--update-checkpoint)
+    model_based = "model_based" in manifest
+    best_label = "validation-best" if model_based else "deployed"
     t = results["test"]
     cols = {"ours: test (raw)": t["summary"]}
     if deployed in run.test_filtered:
-        cols[f"ours: test, EMA tau={deployed:g} s (deployed)"] = results["test_ema"][str(deployed)]
+        cols[f"ours: test, EMA tau={deployed:g} s ({best_label})"] = results["test_ema"][str(deployed)]
     if unseen is not None:
         cols["ours: unseen (raw)"] = results["unseen"]["summary"]
         if deployed in run.test_filtered:
-            cols[f"ours: unseen, EMA tau={deployed:g} s (deployed)"] = results["unseen_ema"][str(deployed)]
+            cols[f"ours: unseen, EMA tau={deployed:g} s ({best_label})"] = results["unseen_ema"][str(deployed)]
     paper = PAPER[regime]
     md = [f"## {regime.capitalize()} wind estimation", ""]
     md.append(
-        f"Checkpoint `{repo_relative(checkpoint)}` (best epoch {manifest.get('best_epoch', '?')}, trained in "
-        f"{manifest.get('metrics', {}).get('wall_time_s', '?')} s); dataset `{info['path']}` "
+        f"{estimator_description(checkpoint, manifest)}; dataset `{info['path']}` "
         f"({info['cases']} LHS cases, seed {info['seed']}); held-out test split: {info['split_cases']['test']} wind cases, "
         f"{t['summary'].get('n_flights', 0)} flights; estimates every {results['stride']} sample(s) of the 10 Hz record past the crop. "
         f"Command: `{results['command']}` (commit `{results.get('git_commit')}`)."
@@ -151,10 +166,12 @@ def estimation_markdown(run: EstimationRun, figs: dict[str, Path], checkpoint: s
                 ["true", f"{s['altitude_speed_slope_true']:.2e}", f"{paper['slope_true']:.1e}"],
             ]), "",
         ]  # fmt: skip
+    deployment = ("The validation-best time constant is reported, not deployed: a model-based estimator has no checkpoint "
+                  "to record it in, so `rl.envs.validated_tau_s` gives it the paper's tau." if model_based else
+                  "The validation-best time constant is the one the PPO recipes train and fly the policy with "
+                  "(`rl.envs.validated_tau_s`, recorded in the estimator's manifest).")  # fmt: skip
     md += [f"### EMA post-filter sweep on the validation flights (tau = 0: raw; paper: tau = {run.paper_tau_s:g} s best)", "",
-           "The validation-best time constant is the one the PPO recipes train and fly the policy with "
-           "(`rl.envs.validated_tau_s`, recorded in the estimator's manifest).", "",
-           sweep_table(run.sweep, run.tau_best, run.paper_tau_s), ""]
+           deployment, "", sweep_table(run.sweep, run.tau_best, run.paper_tau_s, deployed=not model_based), ""]
     if unseen is not None:
         u = results["unseen"]["summary"]
         rows_ = [["raw", fmt(u["per_window_vector_rmse"]), fmt(u["direction_mae_deg"], 1),

@@ -1,0 +1,148 @@
+"""Issue 27: the turbulence layout of a generated dataset (``generate_flights.py --turbulence-layout``)
+and the model-based UKF through the estimator evaluation (``evaluate_estimator.py --checkpoint ukf``)."""
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from quadwind_trl.config import EnvConfig, TrajectoryConfig, config_differences, config_to_dict
+from quadwind_trl.data import GenerationSpec, generate_dataset, load_dataset
+from quadwind_trl.data.generate import quick_spec
+from quadwind_trl.envs import RegimeRanges
+from quadwind_trl.regimes import DATASET_SEED
+from test_data import generated_once, micro_spec
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def recipe(name: str):
+    path = ROOT / "recipes" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"{name}_recipe_issue27", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+generate_flights = recipe("generate_flights")
+evaluate_estimator = recipe("evaluate_estimator")
+
+
+# --- generate_flights --turbulence-layout -------------------------------------------------------
+
+
+@pytest.mark.parametrize("quick", [False, True], ids=["paper_size", "quick"])
+def test_paper_grid_spec_differs_from_the_shipped_one_only_in_the_turbulence_layout(quick):
+    seed = DATASET_SEED["horizontal"]
+    full, full_changes = generate_flights.build_spec("horizontal", quick, None, seed)
+    grid, grid_changes = generate_flights.build_spec("horizontal", quick, None, seed, "paper_grid")
+    # the default is the spec the shipped datasets were made with, unchanged
+    shipped = quick_spec("horizontal", seed=seed, cases=3)[0] if quick else GenerationSpec("horizontal", 1000, seed)
+    assert full == shipped and config_to_dict(full.config) == config_to_dict(shipped.config)
+    assert grid.config.turbulence.layout == "paper_grid" and full.config.turbulence.layout == "full"
+    assert config_differences(grid.config, full.config) == ["turbulence"]
+    assert replace(grid.config.turbulence, layout="full") == full.config.turbulence
+    assert replace(grid, config=full.config) == full and grid_changes == full_changes
+    # the manifest and the resume fingerprint both record config_to_dict(spec.config)
+    assert config_to_dict(grid.config)["turbulence"]["layout"] == "paper_grid"
+    suffix = "_quick" if quick else ""
+    assert generate_flights.default_out("horizontal", quick, "full") == f"data/flights_horizontal{suffix}"
+    assert generate_flights.default_out("horizontal", quick, "paper_grid") == f"data/flights_horizontal_paper_grid{suffix}"
+
+
+class Interrupt(Exception):
+    pass
+
+
+def test_an_interrupted_paper_grid_run_resumes_only_as_one_and_its_manifest_names_the_layout(tmp_path):
+    # a small cube bank (the paper's 64^3 x 10 takes about 35 s to build); the full layout ignores it
+    turbulence = replace(micro_spec().config.turbulence, cube_points=8, cube_length_scales_m=(150.0,), cube_bank_size=1)
+    full = replace(micro_spec(), config=replace(micro_spec().config, turbulence=turbulence))
+    grid = replace(full, config=replace(full.config, turbulence=replace(turbulence, layout="paper_grid")))
+    out = tmp_path / "cube"
+
+    def stop(chunk: int) -> None:
+        raise Interrupt
+
+    with pytest.raises(Interrupt):
+        generate_dataset(out, grid, max_batch=3, progress=False, after_chunk=stop)
+    with pytest.raises(ValueError, match="another spec or batch"):
+        generate_dataset(out, full, max_batch=3, progress=False, resume=True)
+    generate_dataset(out, grid, max_batch=3, progress=False, resume=True)
+    _, manifest = load_dataset(out)
+    assert manifest["config"]["turbulence"]["layout"] == "paper_grid"
+
+
+# --- evaluate_estimator --checkpoint ukf --------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def short_horizontal(tmp_path_factory) -> Path:
+    """3 horizontal cases (one per split under --quick) of 10 s patterns at 6-8 m: about 17 s flights,
+    every one with windows past the crop (the --quick set's 25 s flights cost half as much again)."""
+    cfg = replace(EnvConfig(), trajectories=replace(TrajectoryConfig(), horizontal_duration_s=10.0))
+    spec = GenerationSpec("horizontal", cases=3, seed=DATASET_SEED["horizontal"], config=cfg,
+                          ranges=RegimeRanges(altitude_m=(6.0, 8.0)))
+    return generated_once(tmp_path_factory, "flights_horizontal_short", spec, max_batch=16)
+
+
+def run_recipe(monkeypatch, *argv: str) -> None:
+    monkeypatch.setattr(sys, "argv", ["recipes/evaluate_estimator.py", *argv])
+    evaluate_estimator.main()
+
+
+def test_the_ukf_is_evaluated_with_the_network_tables_and_its_outputs_default_beside_them(short_horizontal, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the default outputs land under the working directory
+    run_recipe(monkeypatch, "--regime", "horizontal", "--checkpoint", "ukf", "--data", str(short_horizontal), "--quick",
+               "--threads", "1")
+    out = tmp_path / "results" / "experiments" / "ukf"
+    written = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file() and ".lock" not in p.name)
+    assert all(p.startswith("results/experiments/ukf/") for p in written), written  # never the network's shipped outputs
+    results = json.loads((out / "estimation_horizontal.json").read_text())
+    assert results["checkpoint"] == "ukf" and results["data"]["turbulence_layout"] == "full"
+    assert results["estimator"]["model_based"] == "WindUKF"
+    assert results["estimator"]["config"]["drag_scale"] == 1.15 and results["estimator"]["config"]["mass_scale"] == 0.95
+    s = results["test"]["summary"]
+    assert s["n_windows"] > 0 and math.isfinite(s["per_window_vector_rmse"]) and math.isfinite(s["per_flight_vector_rmse"])
+    assert str(results["val_best_tau_s"]) in results["val_ema_sweep"] and results["figures"]
+    assert all((out / "figures" / Path(f).name).exists() for f in results["figures"].values())
+    md = (out / "estimation.md").read_text()
+    assert "Model-based estimator `WindUKF` (`--checkpoint ukf`): no training" in md
+    assert "drag_scale 1.15" in md and "mass_scale 0.95" in md
+    assert "best epoch" not in md and "deployed)" not in md and "(validation-best)" in md and " (best)" in md
+    assert "](figures/estimation_horizontal_" in md  # links relative to the markdown's own folder
+
+
+def test_output_defaults_keep_the_network_on_its_shipped_paths():
+    def paths(checkpoint, **given):
+        args = argparse.Namespace(regime="horizontal", checkpoint=checkpoint, json=None, md=None, fig_dir=None, link_base=None)
+        return [p.as_posix() for p in evaluate_estimator.output_paths(argparse.Namespace(**{**vars(args), **given}),
+                                                                      checkpoint == "ukf")]
+
+    assert paths(None) == ["results/estimation_horizontal.json", "docs/results/2_estimation.md", "docs/figures", "docs"]
+    assert paths("ukf") == ["results/experiments/ukf/estimation_horizontal.json", "results/experiments/ukf/estimation.md",
+                            "results/experiments/ukf/figures", "results/experiments/ukf"]
+    assert paths("ukf", md="x.md", link_base="y")[1:4:2] == ["x.md", "y"]
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--regime", "horizontal", "--update-checkpoint"],
+         "--update-checkpoint with --checkpoint ukf: a model-based estimator has no checkpoint"),
+        (["--regime", "vertical"], "--checkpoint ukf with --regime vertical: the UKF reads the 'horizontal' features only"),
+    ],
+    ids=["update_checkpoint", "vertical"],
+)
+def test_what_the_ukf_cannot_do_is_refused_before_anything_loads(argv, message, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as refused:
+        run_recipe(monkeypatch, *argv, "--checkpoint", "ukf", "--data", str(tmp_path / "no_such_dataset"))
+    assert refused.value.code == 2 and message in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []  # no output folder made, no dataset read
