@@ -213,4 +213,5 @@ def test_the_report_section_renders_every_table(analysis):
     assert any(r.startswith("| turn | 88 |") for r in rows)
     change = [r for r in rows if r.startswith("| `no_attitude_accel` | horizontal | all |")]
     assert change and "| +25.0 (" in change[0]
+    assert change[0].count("|") == 10 and change[0].endswith(" 47.6 |")  # the variant's zeroing share, the paper's beside
     assert "![value of the estimate](figures/perception_value.png)" in text

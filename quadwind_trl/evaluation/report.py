@@ -381,14 +381,16 @@ def perception_phase_table(analysis: dict, value: str) -> list[str]:
 
 
 def perception_variants_table(variants: dict) -> list[str]:
-    """Each policy variant's value of perception per wind level, and its change against the base
-    recipe's seeds with a Welch 95 % interval."""
+    """Each policy variant's value of perception per wind level, its change against the base
+    recipe's seeds with a Welch 95 % interval, and its zeroing share beside the paper's."""
     lines = ["### Policy variants: which change makes perception matter", "",
-             "Each variant retrains both the wind-aware and the trained-blind policy with one change and flies the same",
+             "Each variant retrains the wind-aware policy with one change, and the trained-blind one too where the change",
+             "touches it (an EMA time constant does not: it filters an input the trained-blind policy never sees), and flies the same",
              "paired ablation. *Change* = the variant's seed-mean value minus the base recipe's (positive: the estimate is",
              "worth more to the variant), with a Welch 95 % interval over the two sets of seeds.", "",
-             "| variant | sweep | U (m/s) | wind-aware vs trained blind: seed mean (range) | 95 % t (seeds) | change vs base (95 % Welch) |",
-             "|---|---|---|---|---|---|"]
+             "| variant | sweep | U (m/s) | wind-aware vs trained blind: seed mean (range) | 95 % t (seeds) | change vs base (95 % Welch) "
+             "| zeroing share: seed mean (range) | 95 % t (seeds) | paper: zeroing share |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for name, variant in variants.items():
         for sweep, analysis in _in_sweep_order(variant["sweeps"]):
             change = analysis.get("change_vs_base", {})
@@ -396,7 +398,9 @@ def perception_variants_table(variants: dict) -> list[str]:
                 c = change.get(key)
                 delta = "-" if c is None else (f"{c['change']:+.1f}" + ("" if not math.isfinite(c["welch_low"])
                                                                        else f" ({c['welch_low']:+.1f} to {c['welch_high']:+.1f})"))
-                lines.append(f"| `{name}` | {sweep} | {key} | {_seed_cells(row.get('aware_vs_trained_blind'))} | {delta} |")
+                ref = row.get("paper_zeroing_share")
+                lines.append(f"| `{name}` | {sweep} | {key} | {_seed_cells(row.get('aware_vs_trained_blind'))} | {delta} | "
+                             f"{_seed_cells(row.get('zeroing_share'))} | {'-' if ref is None else f'{ref:.1f}'} |")
     return lines + [""]
 
 
