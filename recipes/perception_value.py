@@ -97,7 +97,7 @@ def main() -> None:
                "seed_counts": {sweep: len(a["seeds"]) for sweep, a in sweeps.items()}, "inputs": inputs,
                "sweeps": sweeps, "variants": variants, "figure": repo_relative(args.figure)}
     write_json(args.out, payload)
-    figures.perception_value(sweeps, args.figure)
+    figures.perception_value(sweeps, args.figure, variants)
     for sweep, a in sweeps.items():
         row = a["by_wind"]["all"].get("aware_vs_trained_blind")
         if row is not None:

@@ -215,3 +215,18 @@ def test_the_report_section_renders_every_table(analysis):
     assert change and "| +25.0 (" in change[0]
     assert change[0].count("|") == 10 and change[0].endswith(" 47.6 |")  # the variant's zeroing share, the paper's beside
     assert "![value of the estimate](figures/perception_value.png)" in text
+
+
+def test_the_figure_draws_each_variant_beside_the_base_seeds(analysis, monkeypatch, tmp_path):
+    from quadwind_trl.evaluation import figures
+
+    variant = analyse_sweep({"0": _seed(0.4, None, False), "1": _seed(0.5, None, False)}, resamples=10)
+    drawn = {}
+    monkeypatch.setattr(figures, "_save", lambda fig, path: drawn.setdefault("fig", fig) and path)
+    figures.perception_value({"horizontal": analysis}, tmp_path / "value.png",
+                             {"no_attitude_accel": {"sweeps": {"horizontal": variant}}, "other_sweep_only": {"sweeps": {}}})
+    value, share = drawn["fig"].axes
+    labels = [[t.get_text() for t in panel.get_legend().get_texts()] for panel in (value, share)]
+    assert any(t.startswith("no_attitude_accel: wind-aware vs trained blind (n = 2 seeds)") for t in labels[0])
+    assert any(t.startswith("no_attitude_accel: zeroing share (n = 2 seeds)") for t in labels[1])
+    assert not any("other_sweep_only" in t for t in labels[0] + labels[1])  # a variant that did not fly the sweep

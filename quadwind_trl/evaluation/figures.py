@@ -441,26 +441,38 @@ def _seed_series(a, speeds: np.ndarray, blocks: list[dict | None], values, label
                label=f"{label} (n = {'/'.join(str(k) for k in n)} seeds)")
 
 
-def perception_value(analyses: dict[str, dict], path: Path) -> Path:
+VARIANT_COLORS = ("#8c564b", "#e377c2", "#17becf", "#bcbd22")  # one per policy variant, in the order given
+
+
+def perception_value(analyses: dict[str, dict], path: Path, variants: dict[str, dict] | None = None) -> Path:
     """The value of the wind estimate per wind speed, one row per sweep (:func:`~quadwind_trl.
     evaluation.perception.analyse_sweep` results): (a) the RMSE reduction of the wind-aware and
     the oracle-trained policy against the trained-blind one; (b) perception's share of the gain
     over PD, with the trained-blind policy as the blind step and by zeroing the wind inputs, beside
-    the paper's zeroing share. Dots: seeds; markers and bars: seed mean and 95 % t-interval."""
+    the paper's zeroing share. Each of ``variants`` (name -> ``{"sweeps": {sweep: analysis}}``, the
+    policies retrained another way) adds its wind-aware-vs-trained-blind value to (a) and its
+    zeroing share to (b). Dots: seeds; markers and bars: seed mean and 95 % t-interval."""
+    variants = variants or {}
     fig, ax = plt.subplots(len(analyses), 2, figsize=(11, 4.0 * len(analyses)), squeeze=False)
     for (a, b), (sweep, result) in zip(ax, analyses.items()):
         rows = {float(k): v for k, v in result["by_wind"].items() if k != "all"}
         speeds = np.array(sorted(rows))
-        step = 0.12 * (np.diff(speeds).min() if len(speeds) > 1 else 1.0)
-        for k, (key, label, color) in enumerate(PERCEPTION_VALUES):
-            _seed_series(a, speeds, [rows[s].get(key) for s in speeds], lambda ps: [v["improvement"] for v in ps.values()],
-                         label, color, (k - 0.5) * step)
+        # (key, label, colour, rows) per series; a variant's rows are its own analysis of this sweep
+        extra = [(name, VARIANT_COLORS[k % len(VARIANT_COLORS)], {float(u): v for u, v in v["sweeps"][sweep]["by_wind"].items() if u != "all"})
+                 for k, (name, v) in enumerate(variants.items()) if sweep in v["sweeps"]]
+        values = [(key, label, color, rows) for key, label, color in PERCEPTION_VALUES]
+        values += [("aware_vs_trained_blind", f"{name}: wind-aware vs trained blind", color, r) for name, color, r in extra]
+        shares = [(key, label, color, rows) for key, label, color in PERCEPTION_SHARES]
+        shares += [("zeroing_share", f"{name}: zeroing share", color, r) for name, color, r in extra]
+        for panel, series, per_seed in ((a, values, lambda ps: [v["improvement"] for v in ps.values()]),
+                                        (b, shares, lambda ps: list(ps.values()))):
+            step = 0.5 / max(len(series), 1) * (np.diff(speeds).min() if len(speeds) > 1 else 1.0)
+            for k, (key, label, color, r) in enumerate(series):
+                _seed_series(panel, speeds, [r.get(u, {}).get(key) for u in speeds], per_seed, label, color,
+                             (k - (len(series) - 1) / 2) * step)
         a.axhline(0, color="k", lw=0.8)
         a.set(xlabel="mean wind U (m/s)", ylabel="RMSE reduction vs trained blind (%)",
               title=f"{sweep}: value of perception, xy (positive: the wind input helps)")
-        for k, (key, label, color) in enumerate(PERCEPTION_SHARES):
-            _seed_series(b, speeds, [rows[s].get(key) for s in speeds], lambda ps: list(ps.values()), label, color,
-                         (k - 0.5) * step)
         paper_share = [rows[s].get("paper_zeroing_share") for s in speeds]
         if any(p is not None for p in paper_share):
             b.plot(speeds, [np.nan if p is None else p for p in paper_share], "kx--", ms=8, label="paper: zeroing share")
