@@ -14,7 +14,7 @@ import torch
 
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.estimator import untrained_estimator
-from quadwind_trl.regimes import regime_config
+from quadwind_trl.regimes import REWARD_W_Z, regime_config
 from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, vecnorm
 from quadwind_trl.rl.config import Curriculum, PPOConfig, vertical_curriculum
 from quadwind_trl.rl.paired import validation_scenarios
@@ -229,7 +229,7 @@ def test_quick_vertical_curriculum_recipe(tmp_path):
     # recipe's whole --quick run (four batches and an evaluation)
     m = _run_recipe("ppo_vertical_curriculum.py", tmp_path, "--sensing", "true_state", "--total-frames", "256",
                     "--eval-episodes", "0", "--zero-inputs", "pd_thrust", "attitude")
-    assert m["env_spec"]["env_config"]["reward"]["w_z"] == 0.5
+    assert m["env_spec"]["env_config"]["reward"]["w_z"] == REWARD_W_Z["vertical"]  # the regime's preset reaches the saved env
     assert m["env_spec"]["env_config"]["controller"]["feedback"] == "truth"  # --sensing reaches the saved env
     assert m["env_spec"]["zero_inputs"] == ["roll", "pitch", "pd_thrust_over_weight"]  # groups, as channels in order
     assert m["curriculum"]["stages"][-1] == ["vertical_climb", "spiral_ascent", "figure8_3d", "lawnmower_scan"]
