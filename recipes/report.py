@@ -25,11 +25,12 @@ and commit. Regenerate this page with `python recipes/report.py` after rerunning
 **The horizontal wind design changed at commit 4f617f5** (issue 25): the horizontal policy and
 the horizontal and OOD sweeps now draw the shear exponent from the paper's RL range 0.08-0.15
 instead of 0.15-0.25, which had put the strong-wind corner beyond the vehicle's flight envelope
-([simulator.md](simulator.md#flight-envelope)). The PD baseline sections are on the new design.
-Sections whose commit predates 4f617f5 (the horizontal and OOD ablations, the seeds, the
-decomposition, the error budget) were flown on the earlier design and replay at their own
-commits; they are regenerated with policies trained on the new design (issue 25). The vertical
-design did not change.
+([simulator.md](simulator.md#flight-envelope)). On the new design: the PD baseline sections, the
+five horizontal seeds of the chosen recipe ("Across training seeds", "What the estimate is worth").
+Still on the earlier design or recipe, replaying at their own commits: the headline paired
+ablation and its decomposition (the earlier shipped policies), the vertical seeds (the vertical
+recipe changed to `w_z` = 1 and is being retrained; docs/rl.md) and the error budget. Those are
+regenerated when the median seeds of both regimes are shipped.
 """
 
 
