@@ -458,8 +458,9 @@ def perception_value(analyses: dict[str, dict], path: Path, variants: dict[str, 
         rows = {float(k): v for k, v in result["by_wind"].items() if k != "all"}
         speeds = np.array(sorted(rows))
         # (key, label, colour, rows) per series; a variant's rows are its own analysis of this sweep
-        extra = [(name, VARIANT_COLORS[k % len(VARIANT_COLORS)], {float(u): v for u, v in v["sweeps"][sweep]["by_wind"].items() if u != "all"})
-                 for k, (name, v) in enumerate(variants.items()) if sweep in v["sweeps"]]
+        extra = [(name, VARIANT_COLORS[k % len(VARIANT_COLORS)],
+                  {float(u): row for u, row in variant["sweeps"][sweep]["by_wind"].items() if u != "all"})
+                 for k, (name, variant) in enumerate(variants.items()) if sweep in variant["sweeps"]]
         values = [(key, label, color, rows) for key, label, color in PERCEPTION_VALUES]
         values += [("aware_vs_trained_blind", f"{name}: wind-aware vs trained blind", color, r) for name, color, r in extra]
         shares = [(key, label, color, rows) for key, label, color in PERCEPTION_SHARES]

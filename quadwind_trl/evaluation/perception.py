@@ -16,8 +16,8 @@ episodes this module computes, per seed:
 and across seeds the mean, the range and a Student-t interval over the seed-level values (the
 seed-level interval), and the pooled comparison of the seed-averaged episodes (the
 episode-level interval of the seed ensemble). Policy variants (retrained without some inputs,
-another EMA time constant) are analysed the same way and compared with the base recipe by a
-Welch interval on the difference of the seed means. All outputs are JSON-ready.
+another EMA time constant) are analysed the same way and compared with the base recipe on the
+same seeds, by a paired t-interval over the per-seed differences. All outputs are JSON-ready.
 """
 from __future__ import annotations
 
@@ -57,15 +57,6 @@ def t_interval(values: Sequence[float], level: float = LEVEL) -> tuple[float, fl
     x = torch.tensor(values, dtype=torch.float64)
     half = float(stats.t.ppf(0.5 + level / 2, n - 1)) * x.std().item() / math.sqrt(n)
     return x.mean().item() - half, x.mean().item() + half
-
-
-def welch_interval(a: Sequence[float], b: Sequence[float], level: float = LEVEL) -> tuple[float, float]:
-    """Welch interval of ``mean(a) - mean(b)`` (two independent sets of seeds, unequal variances);
-    NaN unless both have two values or more."""
-    if len(a) < 2 or len(b) < 2:
-        return math.nan, math.nan
-    ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(level)
-    return float(ci.low), float(ci.high)
 
 
 def across_seeds(per_seed: Mapping[str, float]) -> dict:
@@ -209,16 +200,22 @@ def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000) -> dict:
 
 def variant_change(base: dict, variant: dict, comparison: str = "aware_vs_trained_blind") -> dict:
     """Per wind group of two :func:`analyse_sweep` results (the base recipe's seeds and a
-    variant's): the variant's seed-mean value of ``comparison`` minus the base's, with a Welch
-    interval over the two sets of seeds (positive: the variant makes perception worth more)."""
+    variant's): the variant's value of ``comparison`` minus the base's on the seeds both trained,
+    with a paired t-interval over those seeds (positive: the variant makes perception worth more).
+    Paired by seed, not two independent sets: a variant may keep the base seed's policies (an EMA
+    time constant retrains only the wind-aware one), and seeds the variant lacks would otherwise
+    weigh on one side only."""
     out = {}
     for group, row in variant["by_wind"].items():
         if comparison not in row or comparison not in base["by_wind"].get(group, {}):
             continue
-        v = [b["improvement"] for b in row[comparison]["per_seed"].values()]
-        b = [x["improvement"] for x in base["by_wind"][group][comparison]["per_seed"].values()]
-        low, high = welch_interval(v, b)
-        out[group] = {"base_mean": sum(b) / len(b), "variant_mean": sum(v) / len(v),
-                      "change": sum(v) / len(v) - sum(b) / len(b), "welch_low": low, "welch_high": high,
-                      "n_base": len(b), "n_variant": len(v)}
+        v, b = row[comparison]["per_seed"], base["by_wind"][group][comparison]["per_seed"]
+        seeds = [seed for seed in v if seed in b]
+        if not seeds:
+            continue
+        diffs = [v[seed]["improvement"] - b[seed]["improvement"] for seed in seeds]
+        low, high = t_interval(diffs)
+        out[group] = {"seeds": seeds, "base_mean": sum(b[seed]["improvement"] for seed in seeds) / len(seeds),
+                      "variant_mean": sum(v[seed]["improvement"] for seed in seeds) / len(seeds),
+                      "change": sum(diffs) / len(diffs), "t_low": low, "t_high": high}
     return out

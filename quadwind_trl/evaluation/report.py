@@ -382,13 +382,13 @@ def perception_phase_table(analysis: dict, value: str) -> list[str]:
 
 def perception_variants_table(variants: dict) -> list[str]:
     """Each policy variant's value of perception per wind level, its change against the base
-    recipe's seeds with a Welch 95 % interval, and its zeroing share beside the paper's."""
+    recipe's same seeds with a paired t-interval, and its zeroing share beside the paper's."""
     lines = ["### Policy variants: which change makes perception matter", "",
              "Each variant retrains the wind-aware policy with one change, and the trained-blind one too where the change",
              "touches it (an EMA time constant does not: it filters an input the trained-blind policy never sees), and flies the same",
-             "paired ablation. *Change* = the variant's seed-mean value minus the base recipe's (positive: the estimate is",
-             "worth more to the variant), with a Welch 95 % interval over the two sets of seeds.", "",
-             "| variant | sweep | U (m/s) | wind-aware vs trained blind: seed mean (range) | 95 % t (seeds) | change vs base (95 % Welch) "
+             "paired ablation. *Change* = the variant's value minus the base recipe's on the same seeds (positive: the estimate",
+             "is worth more to the variant), with a paired 95 % t-interval over those seeds and their count.", "",
+             "| variant | sweep | U (m/s) | wind-aware vs trained blind: seed mean (range) | 95 % t (seeds) | change vs base, same seeds (95 % paired t) "
              "| zeroing share: seed mean (range) | 95 % t (seeds) | paper: zeroing share |",
              "|---|---|---|---|---|---|---|---|---|"]
     for name, variant in variants.items():
@@ -396,8 +396,9 @@ def perception_variants_table(variants: dict) -> list[str]:
             change = analysis.get("change_vs_base", {})
             for key, row in _wind_rows(analysis["by_wind"]):
                 c = change.get(key)
-                delta = "-" if c is None else (f"{c['change']:+.1f}" + ("" if not math.isfinite(c["welch_low"])
-                                                                       else f" ({c['welch_low']:+.1f} to {c['welch_high']:+.1f})"))
+                delta = "-" if c is None else (f"{c['change']:+.1f}" + ("" if not math.isfinite(c["t_low"])
+                                                                       else f" ({c['t_low']:+.1f} to {c['t_high']:+.1f})")
+                                               + f" ({len(c['seeds'])})")
                 ref = row.get("paper_zeroing_share")
                 lines.append(f"| `{name}` | {sweep} | {key} | {_seed_cells(row.get('aware_vs_trained_blind'))} | {delta} | "
                              f"{_seed_cells(row.get('zeroing_share'))} | {'-' if ref is None else f'{ref:.1f}'} |")

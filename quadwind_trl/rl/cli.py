@@ -49,9 +49,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
                    help="none (the paper, default) or return_std: rewards divided by the running std of the discounted "
                         "return in the PPO update (a recipe candidate; evaluation is unchanged)")
     p.add_argument("--reward-w-z", type=reward_weight, default=None, metavar="BETA",
-                   help=f"the reward's height-error weight beta (default the regime's: {REWARD_W_Z[regime]:g}, chosen on validation, "
-                        f"docs/rl.md; the paper's: {PAPER_REWARD_W_Z[regime]:g}); "
-                        "recorded in the policy's env config, so evaluation flies the same physics)")
+                   help=f"the reward's height-error weight beta (default the regime's: {REWARD_W_Z[regime]:g}; the paper's: "
+                        f"{PAPER_REWARD_W_Z[regime]:g}; regimes.REWARD_W_Z says why they differ); recorded in the "
+                        "policy's env config, so evaluation flies the same physics")
     p.add_argument("--out", default=None, help=f"run directory (default runs/ppo_{regime}[_quick])")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
