@@ -82,11 +82,11 @@ def floor_table(columns: dict[str, dict], estimates: dict[str, dict]) -> str:
                   "flight mean", "estimator per-flight"], rows)  # fmt: skip
 
 
-def sweep_table(sweep: dict[float, dict], best: float, paper: float, deployed: bool = True) -> str:
+def sweep_table(sweep: dict[float, dict], best: float, paper: float, best_is_deployed: bool = True) -> str:
     rows = []
     for tau, m in sweep.items():
         name = "raw" if tau == 0 else f"{tau:g}"
-        mark = ((" (best: deployed)" if deployed else " (best)") if tau == best else "") + (" (paper's)" if tau == paper else "")
+        mark = ((" (best: deployed)" if best_is_deployed else " (best)") if tau == best else "") + (" (paper's)" if tau == paper else "")
         rows.append([name + mark, fmt(m["per_window_vector_rmse"], 3), fmt(m["direction_mae_deg"], 2),
                      fmt(m.get("per_flight_vector_rmse"), 3), fmt(m["corr_n"], 4), fmt(m["corr_e"], 4)])  # fmt: skip
     return table(["tau (s)", "per-window RMSE (m/s)", "dir. MAE (deg)", "per-flight RMSE (m/s)", "corr N", "corr E"], rows)
@@ -171,7 +171,7 @@ def estimation_markdown(run: EstimationRun, figs: dict[str, Path], checkpoint: s
                   "The validation-best time constant is the one the PPO recipes train and fly the policy with "
                   "(`rl.envs.validated_tau_s`, recorded in the estimator's manifest).")  # fmt: skip
     md += [f"### EMA post-filter sweep on the validation flights (tau = 0: raw; paper: tau = {run.paper_tau_s:g} s best)", "",
-           deployment, "", sweep_table(run.sweep, run.tau_best, run.paper_tau_s, deployed=not model_based), ""]
+           deployment, "", sweep_table(run.sweep, run.tau_best, run.paper_tau_s, best_is_deployed=not model_based), ""]
     if unseen is not None:
         u = results["unseen"]["summary"]
         rows_ = [["raw", fmt(u["per_window_vector_rmse"]), fmt(u["direction_mae_deg"], 1),
