@@ -16,6 +16,7 @@ from quadwind_trl.config import EnvConfig, TrajectoryConfig, config_differences,
 from quadwind_trl.data import GenerationSpec, generate_dataset, load_dataset
 from quadwind_trl.data.generate import quick_spec
 from quadwind_trl.envs import RegimeRanges
+from quadwind_trl.estimator.ukf import UKFConfig
 from quadwind_trl.regimes import DATASET_SEED
 from test_data import generated_once, micro_spec
 
@@ -107,14 +108,15 @@ def test_the_ukf_is_evaluated_with_the_network_tables_and_its_outputs_default_be
     results = json.loads((out / "estimation_horizontal.json").read_text())
     assert results["checkpoint"] == "ukf" and results["data"]["turbulence_layout"] == "full"
     assert results["estimator"]["model_based"] == "WindUKF"
-    assert results["estimator"]["config"]["drag_scale"] == 1.15 and results["estimator"]["config"]["mass_scale"] == 0.95
+    ukf = UKFConfig()  # the stated model error, from its one default
+    assert results["estimator"]["config"]["drag_scale"] == ukf.drag_scale and results["estimator"]["config"]["mass_scale"] == ukf.mass_scale
     s = results["test"]["summary"]
     assert s["n_windows"] > 0 and math.isfinite(s["per_window_vector_rmse"]) and math.isfinite(s["per_flight_vector_rmse"])
     assert str(results["val_best_tau_s"]) in results["val_ema_sweep"] and results["figures"]
     assert all((out / "figures" / Path(f).name).exists() for f in results["figures"].values())
     md = (out / "estimation.md").read_text()
     assert "Model-based estimator `WindUKF` (`--checkpoint ukf`): no training" in md
-    assert "drag_scale 1.15" in md and "mass_scale 0.95" in md
+    assert f"drag_scale {ukf.drag_scale:g}" in md and f"mass_scale {ukf.mass_scale:g}" in md
     assert "best epoch" not in md and "deployed)" not in md and "(validation-best)" in md and " (best)" in md
     assert "](figures/estimation_horizontal_" in md  # links relative to the markdown's own folder
 
