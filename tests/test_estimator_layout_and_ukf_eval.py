@@ -119,6 +119,16 @@ def test_the_ukf_is_evaluated_with_the_network_tables_and_its_outputs_default_be
     assert f"drag_scale {ukf.drag_scale:g}" in md and f"mass_scale {ukf.mass_scale:g}" in md
     assert "best epoch" not in md and "deployed)" not in md and "(validation-best)" in md and " (best)" in md
     assert "](figures/estimation_horizontal_" in md  # links relative to the markdown's own folder
+    # the field comparison (recipes/estimator_field.py) reads the same JSON: one UKF row on `full`,
+    # with the field's own floor beside it, and names the evaluation it did not find
+    monkeypatch.setattr(sys, "argv", ["recipes/estimator_field.py", "--evaluation", str(out / "estimation_horizontal.json"),
+                                      str(tmp_path / "no_such.json"), "--md", str(tmp_path / "field.md")])
+    recipe("estimator_field").main()
+    field = (tmp_path / "field.md").read_text()
+    floor = results["test"]["turbulence_floor"]["turbulence_rmse_flight_mean"]
+    row = next(line for line in field.splitlines() if line.startswith("| UKF (model-based, untrained) | `full` |"))
+    assert f"| {s['per_window_vector_rmse']:.2f} |" in row and f"| {floor:.2f} | {s['per_flight_vector_rmse'] - floor:+.2f} |" in row
+    assert "| paper (its field, emulated by `paper_grid`) | - | 1.05 |" in field and "Not yet evaluated:" in field
 
 
 def test_output_defaults_keep_the_network_on_its_shipped_paths():

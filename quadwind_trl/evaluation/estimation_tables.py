@@ -202,3 +202,50 @@ def replace_section(path: Path, regime: str, body: str) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(text)
     tmp.replace(path)
+
+
+def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: str) -> str:
+    """The estimators on both turbulence fields (issue 27): one row per evaluation, as
+    ``(estimator label, evaluate_estimator JSON, its path)``. Each row is the evaluated field's
+    held-out test split: raw per-window, per-flight and direction errors, the EMA at the tau chosen
+    on that field's validation flights, and the field's own flight-mean floor (the per-flight
+    error a perfect air sensor on the same flights would have); then the unseen design where
+    evaluated, and per-window error by wind speed. ``paper_field``: the layout that emulates the
+    paper's field, whose rows the paper's figures sit beside."""
+    def field(results: dict) -> str:
+        return results["data"].get("turbulence_layout", "full")
+
+    paper = PAPER["horizontal"]
+    rows, unseen_rows, speed = [], [], {}
+    for label, r, _ in cells:
+        s, floor, tau = r["test"]["summary"], r["test"]["turbulence_floor"], r["val_best_tau_s"]
+        ema = r["test_ema"].get(str(tau), s)
+        rows.append([label, f"`{field(r)}`", fmt(s["per_window_vector_rmse"]), f"{fmt(ema['per_window_vector_rmse'])} ({tau:g} s)",
+                     fmt(s["per_flight_vector_rmse"]), fmt(ema["per_flight_vector_rmse"]), fmt(floor["turbulence_rmse_flight_mean"]),
+                     f"{s['per_flight_vector_rmse'] - floor['turbulence_rmse_flight_mean']:+.2f}", fmt(s["direction_mae_deg"], 1)])  # fmt: skip
+        if r.get("unseen"):
+            u = r["unseen"]
+            unseen_rows.append([label, f"`{field(r)}`", fmt(u["summary"]["per_window_vector_rmse"]),
+                                fmt(u["summary"]["per_flight_vector_rmse"]), fmt(u["turbulence_floor"]["turbulence_rmse_flight_mean"]),
+                                fmt(u["summary"]["direction_mae_deg"], 1)])  # fmt: skip
+        speed[(label, field(r))] = r["test"]["by_speed"]
+    rows.append([f"paper (its field, emulated by `{paper_field}`)", "-", fmt(paper["per_window_vector_rmse"]), "-",
+                 fmt(paper["per_flight_vector_rmse"]), "-", "-", "-", fmt(paper["direction_mae_deg"], 1)])  # fmt: skip
+    bands = list(next(iter(speed.values())))
+    speed_rows = [[label, f"`{layout}`"] + [fmt(groups[b]["per_window_vector_rmse"]) if b in groups else "-" for b in bands]
+                  for (label, layout), groups in speed.items()]  # fmt: skip
+    speed_rows.append(["paper", "-"] + [fmt(paper["by_speed"][b][0]) if b in paper["by_speed"] else "-" for b in bands])
+    md = [
+        "### Trained and evaluated on each field (held-out test cases of the evaluated field)", "",
+        table(["estimator", "evaluated on", "per-window raw (m/s)", "per-window EMA (validated tau)", "per-flight raw (m/s)",
+               "per-flight EMA (m/s)", "field's flight-mean floor (m/s)", "per-flight raw - floor", "direction MAE raw (deg)"], rows), "",
+    ]  # fmt: skip
+    if unseen_rows:
+        md += ["### Unseen LHS design (every flight; raw)", "",
+               table(["estimator", "evaluated on", "per-window (m/s)", "per-flight (m/s)", "field's flight-mean floor (m/s)",
+                      "direction MAE (deg)"], unseen_rows), ""]  # fmt: skip
+    md += ["### Per-window RMSE (m/s, raw) by true wind speed (m/s), test cases", "",
+           table(["estimator", "evaluated on"] + bands, speed_rows), ""]
+    md += ["Commands and commits, per row:", ""]
+    md += [f"- {label} on `{field(r)}`: `{r['command']}` (commit `{r.get('git_commit')}`; all numbers `{path}`)" for label, r, path in cells]
+    return "\n".join(md)
