@@ -25,12 +25,10 @@ and commit. Regenerate this page with `python recipes/report.py` after rerunning
 **The horizontal wind design changed at commit 4f617f5** (issue 25): the horizontal policy and
 the horizontal and OOD sweeps now draw the shear exponent from the paper's RL range 0.08-0.15
 instead of 0.15-0.25, which had put the strong-wind corner beyond the vehicle's flight envelope
-([simulator.md](simulator.md#flight-envelope)). On the new design: the PD baseline sections, the
-five horizontal seeds of the chosen recipe ("Across training seeds", "What the estimate is worth").
-Still on the earlier design or recipe, replaying at their own commits: the headline paired
-ablation and its decomposition (the earlier shipped policies), the vertical seeds (the vertical
-recipe changed to `w_z` = 1 and is being retrained; docs/rl.md) and the error budget. Those are
-regenerated when the median seeds of both regimes are shipped.
+([simulator.md](simulator.md#flight-envelope)). Every RL section is five seeds per regime of the
+recipes chosen on the validation sweep, and the shipped policies are their median seeds by
+validation. Still on the earlier policies (and, horizontally, the earlier design), replaying at
+its own commit: the error budget.
 """
 
 
