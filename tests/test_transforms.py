@@ -501,6 +501,10 @@ def test_estimate_every_s_is_validated_recorded_and_defaults_for_old_policies(bu
     # the PPO recipes' default: the largest whole multiple of the log interval at or below tau / 30
     for tau, every in ((30.0, 1.0), (20.0, 0.6), (3.0, 0.1), (0.0, 0.1), (60.0, 2.0)):
         assert recipe_estimate_every_s(tau, 0.1) == every, tau
-    for regime in ("horizontal", "vertical"):  # the shipped policies predate the setting
+    # the shipped policies trained with the recipes' default for their tau (30 s -> 1 s, 20 s -> 0.6 s),
+    # recorded, and fly with it; the same spec without the setting (an older policy) takes 0.1 s
+    for regime, every in (("horizontal", 1.0), ("vertical", 0.6)):
         spec = load_checkpoint(CHECKPOINT_DIR / f"policy_{regime}.pt", "policy")["env_spec"]
-        assert policy_env_settings(spec, None)["estimate_every_s"] == 0.1
+        assert policy_env_settings(spec, None)["estimate_every_s"] == every == recipe_estimate_every_s(spec["ema_tau_s"], 0.1)
+        older = {key: value for key, value in spec.items() if key != "estimate_every_s"}
+        assert policy_env_settings(older, None)["estimate_every_s"] == 0.1
