@@ -7,6 +7,7 @@ import os
 import re
 from pathlib import Path
 
+from ..config import TurbulenceConfig
 from ..manifest import repo_relative
 from .estimation import PAPER
 from .estimation_run import EstimationRun
@@ -212,8 +213,8 @@ def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: s
     error a perfect air sensor on the same flights would have); then the unseen design where
     evaluated, and per-window error by wind speed. ``paper_field``: the layout that emulates the
     paper's field, whose rows the paper's figures sit beside."""
-    def field(results: dict) -> str:
-        return results["data"].get("turbulence_layout", "full")
+    def field(results: dict) -> str:  # evaluations from before the layout was recorded flew the default
+        return results["data"].get("turbulence_layout", TurbulenceConfig().layout)
 
     paper = PAPER["horizontal"]
     rows, unseen_rows, speed = [], [], {}
