@@ -50,9 +50,13 @@ def main() -> None:
             missing.append(repo_relative(path))
             continue
         results = json.loads(path.read_text())
-        if results["regime"] != "horizontal":
-            parser.error(f"--evaluation {path}: regime {results['regime']!r}; the field comparison is horizontal")
-        cells.append((estimator_label(results), results, repo_relative(path)))
+        if results.get("regime") != "horizontal":
+            parser.error(f"--evaluation {path}: regime {results.get('regime')!r}; the field comparison is horizontal")
+        try:
+            cells.append((estimator_label(results), results, repo_relative(path)))
+        except (OSError, KeyError) as err:  # the checkpoint's manifest, or the evaluation's own fields
+            parser.error(f"--evaluation {path}: cannot label its estimator ({type(err).__name__}: {err}); "
+                         "expected an evaluate_estimator.py JSON whose checkpoint has its manifest beside it")
     if not cells:
         parser.error(f"--evaluation: none of {[repo_relative(p) for p in args.evaluation]} exists")
     md = ["## The estimator on the paper's turbulence field (issue 27)", "",

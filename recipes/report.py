@@ -25,8 +25,9 @@ and commit. Regenerate this page with `python recipes/report.py` after rerunning
 **The horizontal wind design changed at commit 4f617f5** (issue 25): the horizontal policy and
 the horizontal and OOD sweeps now draw the shear exponent from the paper's RL range 0.08-0.15
 instead of 0.15-0.25, which had put the strong-wind corner beyond the vehicle's flight envelope
-([simulator.md](simulator.md#flight-envelope)). Every RL section is five seeds per regime of the
-recipes chosen on the validation sweep, and the shipped policies are their median seeds by
+([simulator.md](simulator.md#flight-envelope)). The RL policies are five seeds per regime of the
+recipes chosen on the validation sweep (three for the trained oracle and the perception
+variants); the shipped policies, and the headline paired ablation, are the median seeds by
 validation. Still on the earlier policies (and, horizontally, the earlier design), replaying at
 its own commit: the error budget.
 """

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from quadwind_trl.config import EnvConfig, TrajectoryConfig, config_differences, config_to_dict
+from quadwind_trl.config import EnvConfig, TrajectoryConfig, TurbulenceConfig, config_differences, config_to_dict
 from quadwind_trl.data import GenerationSpec, generate_dataset, load_dataset
 from quadwind_trl.data.generate import quick_spec
 from quadwind_trl.envs import RegimeRanges
@@ -128,7 +128,8 @@ def test_the_ukf_is_evaluated_with_the_network_tables_and_its_outputs_default_be
     floor = results["test"]["turbulence_floor"]["turbulence_rmse_flight_mean"]
     row = next(line for line in field.splitlines() if line.startswith("| UKF (model-based, untrained) | `full` |"))
     assert f"| {s['per_window_vector_rmse']:.2f} |" in row and f"| {floor:.2f} | {s['per_flight_vector_rmse'] - floor:+.2f} |" in row
-    assert "| paper (its field, emulated by `paper_grid`) | - | 1.05 |" in field and "Not yet evaluated:" in field
+    assert "| paper (its field, emulated by `paper_grid`) | - | 1.05 |" in field
+    assert f"Not yet evaluated: `{tmp_path / 'no_such.json'}`." in field
 
 
 def test_output_defaults_keep_the_network_on_its_shipped_paths():
@@ -158,3 +159,20 @@ def test_what_the_ukf_cannot_do_is_refused_before_anything_loads(argv, message, 
         run_recipe(monkeypatch, *argv, "--checkpoint", "ukf", "--data", str(tmp_path / "no_such_dataset"))
     assert refused.value.code == 2 and message in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # no output folder made, no dataset read
+
+
+def test_a_network_is_labelled_by_the_field_it_trained_on_and_a_bad_manifest_is_refused_by_name(tmp_path, monkeypatch, capsys):
+    field_recipe = recipe("estimator_field")
+    manifest = tmp_path / "net.json"
+    for dataset, layout in (({"turbulence_layout": "paper_grid"}, "paper_grid"), ({}, TurbulenceConfig().layout)):
+        manifest.write_text(json.dumps({"dataset": dataset}))  # {}: trained before the layout was recorded
+        assert field_recipe.estimator_label({"checkpoint": str(tmp_path / "net.pt")}) == f"network trained on `{layout}`"
+    evaluation = tmp_path / "eval.json"
+    evaluation.write_text(json.dumps({"regime": "horizontal", "checkpoint": str(tmp_path / "missing.pt")}))
+    monkeypatch.setattr(sys, "argv", ["recipes/estimator_field.py", "--evaluation", str(evaluation), "--md", str(tmp_path / "x.md")])
+    with pytest.raises(SystemExit):
+        field_recipe.main()
+    assert f"--evaluation {evaluation}: cannot label its estimator (FileNotFoundError" in capsys.readouterr().err
+    with pytest.raises(ValueError, match=r"paper_field='cube'; allowed: 'full', 'paper_grid'"):
+        from quadwind_trl.evaluation.estimation_tables import field_comparison_markdown
+        field_comparison_markdown([], "cube")

@@ -7,7 +7,7 @@ import os
 import re
 from pathlib import Path
 
-from ..config import TurbulenceConfig
+from ..config import TURBULENCE_LAYOUTS, TurbulenceConfig
 from ..manifest import repo_relative
 from .estimation import PAPER
 from .estimation_run import EstimationRun
@@ -213,15 +213,19 @@ def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: s
     error a perfect air sensor on the same flights would have); then the unseen design where
     evaluated, and per-window error by wind speed. ``paper_field``: the layout that emulates the
     paper's field, whose rows the paper's figures sit beside."""
+    if paper_field not in TURBULENCE_LAYOUTS:
+        raise ValueError(f"paper_field={paper_field!r}; allowed: {', '.join(map(repr, TURBULENCE_LAYOUTS))}")
+
     def field(results: dict) -> str:  # evaluations from before the layout was recorded flew the default
         return results["data"].get("turbulence_layout", TurbulenceConfig().layout)
 
     paper = PAPER["horizontal"]
-    rows, unseen_rows, speed = [], [], {}
+    rows, unseen_rows, speed = [], [], []
     for label, r, _ in cells:
         s, floor, tau = r["test"]["summary"], r["test"]["turbulence_floor"], r["val_best_tau_s"]
-        ema = r["test_ema"].get(str(tau), s)
-        rows.append([label, f"`{field(r)}`", fmt(s["per_window_vector_rmse"]), f"{fmt(ema['per_window_vector_rmse'])} ({tau:g} s)",
+        # tau 0 is the raw estimate (validation found no filter better); otherwise the filtered test run
+        ema, ema_label = (s, "raw (best)") if tau == 0 else (r["test_ema"][str(tau)], f"{tau:g} s")
+        rows.append([label, f"`{field(r)}`", fmt(s["per_window_vector_rmse"]), f"{fmt(ema['per_window_vector_rmse'])} ({ema_label})",
                      fmt(s["per_flight_vector_rmse"]), fmt(ema["per_flight_vector_rmse"]), fmt(floor["turbulence_rmse_flight_mean"]),
                      f"{s['per_flight_vector_rmse'] - floor['turbulence_rmse_flight_mean']:+.2f}", fmt(s["direction_mae_deg"], 1)])  # fmt: skip
         if r.get("unseen"):
@@ -229,12 +233,12 @@ def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: s
             unseen_rows.append([label, f"`{field(r)}`", fmt(u["summary"]["per_window_vector_rmse"]),
                                 fmt(u["summary"]["per_flight_vector_rmse"]), fmt(u["turbulence_floor"]["turbulence_rmse_flight_mean"]),
                                 fmt(u["summary"]["direction_mae_deg"], 1)])  # fmt: skip
-        speed[(label, field(r))] = r["test"]["by_speed"]
+        speed.append((label, field(r), r["test"]["by_speed"]))
     rows.append([f"paper (its field, emulated by `{paper_field}`)", "-", fmt(paper["per_window_vector_rmse"]), "-",
                  fmt(paper["per_flight_vector_rmse"]), "-", "-", "-", fmt(paper["direction_mae_deg"], 1)])  # fmt: skip
-    bands = list(next(iter(speed.values())))
+    bands = list(dict.fromkeys(band for *_, groups in speed for band in groups))  # every band any row has, in order
     speed_rows = [[label, f"`{layout}`"] + [fmt(groups[b]["per_window_vector_rmse"]) if b in groups else "-" for b in bands]
-                  for (label, layout), groups in speed.items()]  # fmt: skip
+                  for label, layout, groups in speed]  # fmt: skip
     speed_rows.append(["paper", "-"] + [fmt(paper["by_speed"][b][0]) if b in paper["by_speed"] else "-" for b in bands])
     md = [
         "### Trained and evaluated on each field (held-out test cases of the evaluated field)", "",
