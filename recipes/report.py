@@ -28,8 +28,7 @@ instead of 0.15-0.25, which had put the strong-wind corner beyond the vehicle's 
 ([simulator.md](simulator.md#flight-envelope)). The RL policies are five seeds per regime of the
 recipes chosen on the validation sweep (three for the trained oracle and the perception
 variants); the shipped policies, and the headline paired ablation, are the median seeds by
-validation. Still on the earlier policies (and, horizontally, the earlier design), replaying at
-its own commit: the error budget.
+validation.
 """
 
 
