@@ -19,9 +19,8 @@ import json
 import sys
 from pathlib import Path
 
-from quadwind_trl.config import TurbulenceConfig
 from quadwind_trl.estimator.checkpoint import MODEL_BASED_ESTIMATORS
-from quadwind_trl.evaluation.estimation_tables import field_comparison_markdown
+from quadwind_trl.evaluation.estimation_tables import field_comparison_markdown, turbulence_layout
 from quadwind_trl.manifest import ROOT, command_line, git_commit, repo_relative
 
 CUBE, UKF = Path("results/experiments/cube"), Path("results/experiments/ukf")
@@ -35,8 +34,7 @@ def estimator_label(results: dict) -> str:
     if checkpoint in MODEL_BASED_ESTIMATORS:
         return f"{checkpoint.upper()} (model-based, untrained)"
     manifest = json.loads((ROOT / checkpoint).with_suffix(".json").read_text())
-    layout = manifest["dataset"].get("turbulence_layout", TurbulenceConfig().layout)
-    return f"network trained on `{layout}`"
+    return f"network trained on `{turbulence_layout(manifest['dataset'])}`"
 
 
 def main() -> None:

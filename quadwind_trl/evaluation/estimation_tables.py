@@ -205,6 +205,13 @@ def replace_section(path: Path, regime: str, body: str) -> None:
     tmp.replace(path)
 
 
+def turbulence_layout(data_info: dict) -> str:
+    """The turbulence layout a dataset flew, from the data block of a training or evaluation
+    manifest (``estimator.training.load_estimator_data``'s info); datasets made before the layout
+    was recorded flew the default, the only one the flight generator had then."""
+    return data_info.get("turbulence_layout", TurbulenceConfig().layout)
+
+
 def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: str) -> str:
     """The estimators on both turbulence fields (issue 27): one row per evaluation, as
     ``(estimator label, evaluate_estimator JSON, its path)``. Each row is the evaluated field's
@@ -216,24 +223,22 @@ def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: s
     if paper_field not in TURBULENCE_LAYOUTS:
         raise ValueError(f"paper_field={paper_field!r}; allowed: {', '.join(map(repr, TURBULENCE_LAYOUTS))}")
 
-    def field(results: dict) -> str:  # evaluations from before the layout was recorded flew the default
-        return results["data"].get("turbulence_layout", TurbulenceConfig().layout)
-
     paper = PAPER["horizontal"]
     rows, unseen_rows, speed = [], [], []
     for label, r, _ in cells:
+        layout = turbulence_layout(r["data"])
         s, floor, tau = r["test"]["summary"], r["test"]["turbulence_floor"], r["val_best_tau_s"]
         # tau 0 is the raw estimate (validation found no filter better); otherwise the filtered test run
         ema, ema_label = (s, "raw (best)") if tau == 0 else (r["test_ema"][str(tau)], f"{tau:g} s")
-        rows.append([label, f"`{field(r)}`", fmt(s["per_window_vector_rmse"]), f"{fmt(ema['per_window_vector_rmse'])} ({ema_label})",
+        rows.append([label, f"`{layout}`", fmt(s["per_window_vector_rmse"]), f"{fmt(ema['per_window_vector_rmse'])} ({ema_label})",
                      fmt(s["per_flight_vector_rmse"]), fmt(ema["per_flight_vector_rmse"]), fmt(floor["turbulence_rmse_flight_mean"]),
                      f"{s['per_flight_vector_rmse'] - floor['turbulence_rmse_flight_mean']:+.2f}", fmt(s["direction_mae_deg"], 1)])  # fmt: skip
         if r.get("unseen"):
             u = r["unseen"]
-            unseen_rows.append([label, f"`{field(r)}`", fmt(u["summary"]["per_window_vector_rmse"]),
+            unseen_rows.append([label, f"`{layout}`", fmt(u["summary"]["per_window_vector_rmse"]),
                                 fmt(u["summary"]["per_flight_vector_rmse"]), fmt(u["turbulence_floor"]["turbulence_rmse_flight_mean"]),
                                 fmt(u["summary"]["direction_mae_deg"], 1)])  # fmt: skip
-        speed.append((label, field(r), r["test"]["by_speed"]))
+        speed.append((label, layout, r["test"]["by_speed"]))
     rows.append([f"paper (its field, emulated by `{paper_field}`)", "-", fmt(paper["per_window_vector_rmse"]), "-",
                  fmt(paper["per_flight_vector_rmse"]), "-", "-", "-", fmt(paper["direction_mae_deg"], 1)])  # fmt: skip
     bands = list(dict.fromkeys(band for *_, groups in speed for band in groups))  # every band any row has, in order
@@ -252,5 +257,5 @@ def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: s
     md += ["### Per-window RMSE (m/s, raw) by true wind speed (m/s), test cases", "",
            table(["estimator", "evaluated on"] + bands, speed_rows), ""]
     md += ["Commands and commits, per row:", ""]
-    md += [f"- {label} on `{field(r)}`: `{r['command']}` (commit `{r.get('git_commit')}`; all numbers `{path}`)" for label, r, path in cells]
+    md += [f"- {label} on `{turbulence_layout(r['data'])}`: `{r['command']}` (commit `{r.get('git_commit')}`; all numbers `{path}`)" for label, r, path in cells]
     return "\n".join(md)
