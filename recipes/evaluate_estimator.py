@@ -44,7 +44,7 @@ import torch
 from quadwind_trl.config import EnvConfig, config_from_dict
 from quadwind_trl.estimator import DEFAULT_TAU_S, EstimatorBundle, WindEstimator
 from quadwind_trl.estimator.checkpoint import MODEL_BASED_ESTIMATORS, load_estimator
-from quadwind_trl.estimator.training import load_estimator_data
+from quadwind_trl.estimator.training import estimator_inputs, load_estimator_data
 from quadwind_trl.estimator.ukf import WindUKF
 from quadwind_trl.evaluation.estimation import TAU_SWEEP_S
 from quadwind_trl.evaluation.estimation_figures import estimation_figures
@@ -128,17 +128,23 @@ def main() -> None:
                      hint="wait for it to finish, or choose another --json / --md")
     t_start = time.perf_counter()
 
+    if model_based:
+        inputs = {}
+    else:
+        try:  # the checkpoint says which inputs it reads: the window length and the trailing means
+            estimator = bundle = EstimatorBundle.load(ckpt)
+            inputs = estimator_inputs(bundle)
+        except (FileNotFoundError, ValueError) as err:
+            p.error(str(err))
     try:
-        ed = load_estimator_data(args.data, regime, quick=args.quick)
+        ed = load_estimator_data(args.data, regime, quick=args.quick, **inputs)
     except (FileNotFoundError, ValueError) as err:
         p.error(str(err))
     if model_based:
         estimator, manifest = model_based_estimator(args.checkpoint, regime, ed.manifest)
     else:
-        try:
-            estimator = bundle = EstimatorBundle.load(ckpt, expect_channels=ed.windows.channels)
-        except (FileNotFoundError, ValueError) as err:
-            p.error(str(err))
+        if bundle.schema != regime:
+            p.error(f"{ckpt} is a {bundle.schema!r} estimator, not {regime!r} (--regime)")
         manifest = bundle.manifest
         trained_on = manifest.get("dataset", {}).get("manifest_sha256")
         if trained_on and trained_on != ed.info["manifest_sha256"]:
@@ -152,7 +158,7 @@ def main() -> None:
     unseen = None
     if args.unseen_data:
         try:
-            unseen = load_estimator_data(args.unseen_data, regime, quick=args.quick)
+            unseen = load_estimator_data(args.unseen_data, regime, quick=args.quick, **inputs)
         except (FileNotFoundError, ValueError) as err:
             p.error(f"--unseen-data: {err}")
     run = run_estimation(estimator, ed, results, unseen=unseen, stride=args.stride, batch=args.batch, taus=args.taus,

@@ -8,6 +8,14 @@
 The best checkpoint goes to --out (default: quadwind_trl/checkpoints/estimator_<regime>.pt, the
 shipped one; --quick: runs/estimator/estimator_<regime>_quick.pt) with its JSON manifest beside
 it; CSV logs under runs/estimator/<exp_name>/. An interrupted run continues with --resume.
+
+The inputs, the network and the loss can be changed for an experiment (issue 27; write it under
+results/experiments/, never over the shipped checkpoint), e.g. trailing means of 10, 30, 60 and
+120 s, a two-layer GRU, half the training cases, the plain Huber loss:
+
+    python recipes/train_estimator.py --regime horizontal --data data/flights_horizontal \
+        --trailing-s 10 30 60 120 --out results/experiments/estimator/trailing120.pt
+    ... --gru-layers 2    ... --train-fraction 0.5    ... --speed-weight 0 --direction-weight 0
 """
 from __future__ import annotations
 
@@ -16,11 +24,14 @@ import json
 from quadwind_trl.manifest import command_line
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
 
 from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.estimator.features import LOG_DT_S
+from quadwind_trl.estimator.loss import EstimatorLossConfig
 from quadwind_trl.estimator.training import full_config, load_estimator_data, quick_config, train_estimator
 
 
@@ -39,6 +50,16 @@ def main() -> None:
     p.add_argument("--compile", action="store_true", help="torch.compile the training forward")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run writing --out (none: start one)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint at --out")
+    p.add_argument("--window", type=int, default=None, help="samples per input window (default 60 = 6 s at 10 Hz)")
+    p.add_argument("--trailing-s", type=float, nargs="+", default=None,
+                   help="lengths of the horizontal features' trailing means, s (default 10 30)")
+    p.add_argument("--hidden", type=int, default=None, help="GRU and attention width (default 128)")
+    p.add_argument("--gru-layers", type=int, default=None, help="GRU depth (default 1)")
+    p.add_argument("--head-hidden", type=int, nargs=2, default=None, help="the MLP head's two widths (default 128 64)")
+    p.add_argument("--train-fraction", type=float, default=None,
+                   help="share of the training cases to train on (default 1; validation and test are unchanged)")
+    p.add_argument("--speed-weight", type=float, default=None, help="the loss's speed term weight (default 0.03)")
+    p.add_argument("--direction-weight", type=float, default=None, help="the loss's direction term weight (default 0.05)")
     p.add_argument("--log-dir", default="runs/estimator")
     p.add_argument("--exp-name", default=None, help="logger experiment name (default: unique per run)")
     p.add_argument("--no-progress", action="store_true")
@@ -55,7 +76,22 @@ def main() -> None:
         overrides["patience"] = args.patience or None
     if args.batch_size is not None:
         overrides["batch_size"] = args.batch_size
+    for name in ("window", "hidden", "gru_layers", "train_fraction"):
+        if getattr(args, name) is not None:
+            overrides[name] = getattr(args, name)
+    if args.head_hidden is not None:
+        overrides["head_hidden"] = tuple(args.head_hidden)
+    if args.trailing_s is not None:
+        if args.regime != "horizontal":
+            p.error("--trailing-s: only the horizontal features have trailing means")
+        samples = [s / LOG_DT_S for s in args.trailing_s]
+        if any(abs(n - round(n)) > 1e-6 for n in samples):
+            p.error(f"--trailing-s {args.trailing_s}: each length must be a whole number of {LOG_DT_S} s samples")
+        overrides["trailing_windows"] = tuple(int(round(n)) for n in samples)
+    loss = {k: getattr(args, k) for k in ("speed_weight", "direction_weight") if getattr(args, k) is not None}
     try:
+        if loss:
+            overrides["loss"] = replace(EstimatorLossConfig(), **loss)
         cfg = (quick_config if args.quick else full_config)(args.regime, **overrides)
     except ValueError as err:
         p.error(str(err))
@@ -64,7 +100,8 @@ def main() -> None:
     )
     t0 = time.perf_counter()
     try:
-        ed = load_estimator_data(args.data, args.regime, quick=args.quick, progress=not args.no_progress)
+        ed = load_estimator_data(args.data, args.regime, quick=args.quick, progress=not args.no_progress, window=cfg.window,
+                                 trailing_windows=cfg.trailing_windows, train_fraction=cfg.train_fraction)
     except (FileNotFoundError, ValueError) as err:
         p.error(str(err))
     print(f"dataset {args.data}: {json.dumps(ed.info['split_cases'])} cases, {json.dumps(ed.info['split_windows'])} windows (stride {ed.windows.stride})", flush=True)

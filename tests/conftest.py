@@ -33,3 +33,18 @@ def quiet() -> EnvConfig:
 
 def windy_config(cap_m_s: float = 20.0) -> EnvConfig:
     return quiet_config(wind=WindProfileConfig(max_horizontal_wind_m_s=cap_m_s))
+
+
+@pytest.fixture(scope="module")
+def short_horizontal(tmp_path_factory):
+    """3 horizontal cases (one per split under --quick) of 10 s patterns at 6-8 m: about 17 s flights,
+    every one with windows past the crop (the --quick set's 25 s flights cost half as much again)."""
+    from quadwind_trl.data import GenerationSpec
+    from quadwind_trl.envs import RegimeRanges
+    from quadwind_trl.regimes import DATASET_SEED
+    from test_data import generated_once
+
+    cfg = replace(EnvConfig(), trajectories=replace(TrajectoryConfig(), horizontal_duration_s=10.0))
+    spec = GenerationSpec("horizontal", cases=3, seed=DATASET_SEED["horizontal"], config=cfg,
+                          ranges=RegimeRanges(altitude_m=(6.0, 8.0)))
+    return generated_once(tmp_path_factory, "flights_horizontal_short", spec, max_batch=16)

@@ -391,6 +391,19 @@ def test_quick_training_lowers_validation_loss_and_writes_artifacts(quick_vertic
         train_estimator(ed, cfg, out, log_dir=tmp_path / "logs", progress=False)
 
 
+def test_a_share_of_the_training_cases_leaves_validation_and_test_alone(quick_vertical):
+    full = load_estimator_data(quick_vertical, "vertical", quick=True, progress=False)
+    half = load_estimator_data(quick_vertical, "vertical", quick=True, progress=False, train_fraction=0.5)
+    train, kept = full.windows.split_cases["train"], half.windows.split_cases["train"]
+    assert kept.numel() == round(0.5 * train.numel()) and torch.isin(kept, train).all()
+    for split in ("val", "test"):
+        assert torch.equal(half.windows.split_cases[split], full.windows.split_cases[split])
+        assert torch.equal(half.windows.tables[split], full.windows.tables[split])
+    assert half.info["train_fraction"] == 0.5
+    with pytest.raises(ValueError, match=r"train_fraction=0.0; allowed: \(0, 1\]"):
+        load_estimator_data(quick_vertical, "vertical", quick=True, progress=False, train_fraction=0.0)
+
+
 def test_interrupted_run_resumes_to_the_same_result(quick_vertical, tmp_path):
     ed = load_estimator_data(quick_vertical, "vertical", quick=True, progress=False)
     cfg = quick_config("vertical", epochs=3, windows_per_epoch=128)

@@ -12,13 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from quadwind_trl.config import EnvConfig, TrajectoryConfig, TurbulenceConfig, config_differences, config_to_dict
+from quadwind_trl.config import TurbulenceConfig, config_differences, config_to_dict
 from quadwind_trl.data import GenerationSpec, generate_dataset, load_dataset
 from quadwind_trl.data.generate import quick_spec
-from quadwind_trl.envs import RegimeRanges
 from quadwind_trl.estimator.ukf import UKFConfig
 from quadwind_trl.regimes import DATASET_SEED
-from test_data import generated_once, micro_spec
+from test_data import micro_spec
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -81,16 +80,6 @@ def test_an_interrupted_paper_grid_run_resumes_only_as_one_and_its_manifest_name
 
 
 # --- evaluate_estimator --checkpoint ukf --------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def short_horizontal(tmp_path_factory) -> Path:
-    """3 horizontal cases (one per split under --quick) of 10 s patterns at 6-8 m: about 17 s flights,
-    every one with windows past the crop (the --quick set's 25 s flights cost half as much again)."""
-    cfg = replace(EnvConfig(), trajectories=replace(TrajectoryConfig(), horizontal_duration_s=10.0))
-    spec = GenerationSpec("horizontal", cases=3, seed=DATASET_SEED["horizontal"], config=cfg,
-                          ranges=RegimeRanges(altitude_m=(6.0, 8.0)))
-    return generated_once(tmp_path_factory, "flights_horizontal_short", spec, max_batch=16)
 
 
 def run_recipe(monkeypatch, *argv: str) -> None:

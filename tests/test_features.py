@@ -13,6 +13,7 @@ from quadwind_trl.estimator.features import (
     HORIZONTAL_CHANNELS,
     RAW_RECORD_KEYS,
     TRAILING_SIGNALS,
+    TRAILING_WINDOWS,
     VERTICAL_CHANNELS,
     FeatureExtractor,
     make_extractor,
@@ -219,24 +220,45 @@ def test_yaw_channel_wraps_relative_to_reference():
     assert torch.allclose(f[:, 9], yaw, atol=1e-6)
 
 
-def test_trailing_means_of_a_ramp():
+@pytest.mark.parametrize("windows", [(100, 300), (7, 100, 300, 450)])
+def test_trailing_means_of_a_ramp(windows):
     """Commanded thrust ramps 0, 1, 2, ...: the trailing mean at tick k is the mean of the last
-    min(k + 1, W) values (expanding at the start)."""
-    fx = make_extractor("horizontal")
+    min(k + 1, W) values (expanding at the start), for any set of windows."""
+    fx = make_extractor("horizontal", windows=windows)
     ch = {name: i for i, name in enumerate(fx.channels)}
     t_len = 700
     rec = random_record(1, t_len)
     rec["cmd_wrench"][..., 0] = torch.arange(t_len, dtype=torch.float32)
     f = fx.scan(rec)[0]
     k = torch.arange(t_len, dtype=torch.float64)
-    for w in (100, 300):
+    for w in windows:
         expect = torch.where(k < w, k / 2, k - (w - 1) / 2)
         assert torch.allclose(f[:, ch[f"avg{w}_u_T"]].double(), expect, atol=1e-4, rtol=0), w
     # a constant signal's trailing mean is that constant at every tick, incl. the first
     rec[MEAS_KEY]["gps_vel"][..., 1] = 4.25  # north
     f = fx.scan(rec)[0]
-    assert torch.equal(f[:, ch["avg100_vel_N"]], torch.full((t_len,), 4.25))
-    assert torch.equal(f[:, ch["avg300_vel_N"]], torch.full((t_len,), 4.25))
+    for w in windows:
+        assert torch.equal(f[:, ch[f"avg{w}_vel_N"]], torch.full((t_len,), 4.25))
+    # the paper's two windows are the same numbers whatever other windows ride along
+    if windows != TRAILING_WINDOWS:
+        base = make_extractor("horizontal").scan(rec)[0]
+        assert torch.equal(f[:, [ch[c] for c in HORIZONTAL_CHANNELS]], base)
+
+
+def test_extractor_from_an_estimators_channels():
+    """A checkpoint's channel names say which extractor made them; names no extractor makes are
+    refused, naming the difference."""
+    fx = make_extractor("horizontal", windows=(100, 300, 1200))
+    assert make_extractor("horizontal", channels=fx.channels) == fx
+    assert make_extractor("horizontal", channels=HORIZONTAL_CHANNELS).windows == TRAILING_WINDOWS
+    assert make_extractor("vertical", channels=VERTICAL_CHANNELS).channels == VERTICAL_CHANNELS
+    with pytest.raises(ValueError, match=r"not the 'vertical' feature extractor's \(22.*unexpected"):
+        make_extractor("vertical", channels=HORIZONTAL_CHANNELS)
+    with pytest.raises(ValueError, match=r"missing \['avg300_u_T'\]"):
+        make_extractor("horizontal", channels=HORIZONTAL_CHANNELS[:-1])
+    for bad in ((300, 100), (0, 100), (100, 100), (100, 10**6)):
+        with pytest.raises(ValueError, match=r"FeatureExtractor.windows=.*increasing integer sample counts"):
+            make_extractor("horizontal", windows=bad)
 
 
 def test_vertical_reference_differences_and_errors():

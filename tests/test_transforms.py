@@ -196,7 +196,7 @@ def test_history_and_ema_reset_only_masked_rows(bundle):
     ring = west.ring
     before = {
         "buf": ring.buf.clone(), "ptr": ring.ptr.clone(), "count": ring.count.clone(),
-        "sum": ring.fx_state["sum_long"].clone(),
+        "sum": ring.fx_state["sums"][:, -1].clone(),
         "ema": {k: v.clone() for k, v in west.ema_state.items()}, "value": west.value.clone(),
     }  # fmt: skip
     assert before["count"].tolist() == [4, 4, 4]
@@ -206,7 +206,7 @@ def test_history_and_ema_reset_only_masked_rows(bundle):
     keep = ~mask
     assert torch.equal(ring.buf[keep], before["buf"][keep])
     assert torch.equal(ring.ptr[keep], before["ptr"][keep]) and torch.equal(ring.count[keep], before["count"][keep])
-    assert torch.equal(ring.fx_state["sum_long"][keep], before["sum"][keep])
+    assert torch.equal(ring.fx_state["sums"][:, -1][keep], before["sum"][keep])
     for k, v in before["ema"].items():
         assert torch.equal(west.ema_state[k][keep], v[keep])
     assert torch.equal(west.value[keep], before["value"][keep])

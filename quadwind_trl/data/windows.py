@@ -293,9 +293,16 @@ def prepare_windows(
     t_min_s: float = T_MIN_S,
     settle_s: float = SETTLE_S,
     exclude_crashed: bool = True,
+    train_fraction: float = 1.0,
 ) -> WindowedData:
     """Crop, split by wind case, index the windows and fit the statistics (train only) for a
-    dataset loaded by :func:`~quadwind_trl.data.generate.load_dataset` and its ``features``."""
+    dataset loaded by :func:`~quadwind_trl.data.generate.load_dataset` and its ``features``.
+
+    ``train_fraction`` < 1 keeps that share of the training cases (a seeded subset, the same for
+    every run with the same ``split_seed``); validation and test are unchanged, so a data-size
+    experiment is scored on the same windows as the full run."""
+    if not 0.0 < train_fraction <= 1.0:
+        raise ValueError(f"train_fraction={train_fraction!r}; allowed: (0, 1]")
     regime = manifest["regime"]
     stride = STRIDE[regime] if stride is None else stride
     traj = TrajectoryConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in manifest["config"]["trajectories"].items()})
@@ -311,6 +318,10 @@ def prepare_windows(
     case_id = torch.as_tensor(data["case_id"]).clone()
     usable = ~torch.as_tensor(data["crashed"]).clone() if exclude_crashed else torch.ones_like(length, dtype=torch.bool)
     parts = split_cases(case_id, fractions, split_seed)
+    if train_fraction < 1.0:
+        train = parts["train"]
+        keep = torch.randperm(train.numel(), generator=torch.Generator().manual_seed(split_seed + 1))
+        parts["train"] = torch.sort(train[keep[: max(1, int(round(train_fraction * train.numel())))]]).values
     tables = {}
     for name, cases in parts.items():
         flights = torch.nonzero(torch.isin(case_id, cases) & usable).squeeze(-1)

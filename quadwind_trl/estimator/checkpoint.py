@@ -223,4 +223,8 @@ def load_estimator(regime: Schema, path: str | Path | None = None, *, untrained:
             "and pass --estimator PATH, or pass --untrained-estimator for a smoke test (random estimator: "
             "the wind channels are then meaningless)"
         )
-    return EstimatorBundle.load(path, expect_channels=make_extractor(regime, config).channels, device=device)
+    bundle = EstimatorBundle.load(path, device=device)
+    if bundle.schema != regime:
+        raise ValueError(f"estimator checkpoint {path} is a {bundle.schema!r} estimator; regime={regime!r}")
+    make_extractor(regime, config, channels=bundle.channels)  # refuses channels no extractor of this schema makes
+    return bundle

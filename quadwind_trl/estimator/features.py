@@ -36,6 +36,7 @@ Channel definitions, units and the choices made where the paper is ambiguous are
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Literal, Mapping
 
@@ -58,7 +59,8 @@ RAW_KEYS_BY_SCHEMA: dict[str, tuple[str, ...]] = {
 }
 
 LOG_DT_S = 0.1  # the 10 Hz record
-TRAILING_WINDOWS: tuple[int, int] = (100, 300)  # paper: 10 s and 30 s at 10 Hz
+TRAILING_WINDOWS: tuple[int, ...] = (100, 300)  # paper: 10 s and 30 s at 10 Hz
+MAX_TRAILING_WINDOW = 3000  # 300 s at 10 Hz: longer than any flight the recipes make
 
 
 def raw_record_template(*shape: int) -> TensorDict:
@@ -87,8 +89,24 @@ def horizontal_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
         + ("u_T", "tau_x", "tau_y", "tau_z")  # 17: sensor17
         + ("sf_bx", "sf_by", "sf_bz")  # 20: raw accelerometer
         + ("aero_N", "aero_E", "aero_U", "aero_horiz", "tilt_cmd", "tilt_sat")  # 26
-        + tuple(f"avg{w}_{s}" for w in TRAILING_WINDOWS for s in TRAILING_SIGNALS)  # 48
+        + trailing_channels(TRAILING_WINDOWS)  # 48
     )
+
+
+def trailing_channels(windows: tuple[int, ...]) -> tuple[str, ...]:
+    """The trailing-mean channel names, ``avg<w>_<signal>``, window by window."""
+    return tuple(f"avg{w}_{s}" for w in windows for s in TRAILING_SIGNALS)
+
+
+def trailing_windows_of(channels: tuple[str, ...]) -> tuple[int, ...]:
+    """The trailing windows (samples) named by a horizontal channel list's ``avg<w>_`` channels,
+    in order: what a checkpoint's channel names say its features were."""
+    found = []
+    for name in channels:
+        m = re.fullmatch(r"avg(\d+)_(.+)", name)
+        if m and int(m.group(1)) not in found:
+            found.append(int(m.group(1)))
+    return tuple(found)
 
 
 def vertical_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
@@ -143,7 +161,7 @@ class FeatureExtractor:
     mass_kg: float = 2.59
     gravity_m_s2: float = GRAVITY_M_S2
     log_dt_s: float = LOG_DT_S
-    windows: tuple[int, int] = TRAILING_WINDOWS
+    windows: tuple[int, ...] = TRAILING_WINDOWS  # trailing-mean lengths, samples (horizontal schema)
     yaw_mode: YawMode = "ref_relative"
 
     def __post_init__(self):
@@ -151,8 +169,13 @@ class FeatureExtractor:
             raise ValueError(f"FeatureExtractor.schema={self.schema!r}; allowed: 'horizontal', 'vertical'")
         if self.yaw_mode not in ("ref_relative", "wrapped"):
             raise ValueError(f"FeatureExtractor.yaw_mode={self.yaw_mode!r}; allowed: 'ref_relative', 'wrapped'")
-        if not (0 < self.windows[0] <= self.windows[1]):
-            raise ValueError(f"FeatureExtractor.windows={self.windows!r} must be increasing and positive")
+        w = tuple(self.windows)
+        if not w or any(not isinstance(k, int) for k in w) or list(w) != sorted(set(w)) or not 0 < w[0] <= w[-1] <= MAX_TRAILING_WINDOW:
+            raise ValueError(
+                f"FeatureExtractor.windows={self.windows!r}: one or more distinct, increasing integer sample counts "
+                f"in [1, {MAX_TRAILING_WINDOW}] allowed"
+            )
+        object.__setattr__(self, "windows", w)
 
     @classmethod
     def from_config(cls, schema: Schema, config: EnvConfig | None = None, **kwargs) -> "FeatureExtractor":
@@ -165,7 +188,7 @@ class FeatureExtractor:
     def channels(self) -> tuple[str, ...]:
         if self.schema == "horizontal":
             names = kinematic_channels(self.yaw_mode) + horizontal_channels(self.yaw_mode)[13:26]
-            return names + tuple(f"avg{w}_{s}" for w in self.windows for s in TRAILING_SIGNALS)
+            return names + trailing_channels(self.windows)
         return vertical_channels(self.yaw_mode)
 
     @property
@@ -186,19 +209,19 @@ class FeatureExtractor:
             return {"count": count, "prev_ref_pos": z3, "prev_ref_vel": z3}
         k = len(TRAILING_SIGNALS)
         zero = torch.zeros(batch, k, device=device)
-        sums = torch.zeros(batch, k, dtype=torch.float64, device=device)
+        sums = torch.zeros(batch, len(self.windows), k, dtype=torch.float64, device=device)  # one row per window
         # history[-j] is the trailing-signal sample j ticks before the current one; a tuple of
         # tensors (shifted by reference, never copied or mutated) keeps ``step`` pure and O(1)
-        return {"count": count, "sum_short": sums, "sum_long": sums, "history": (zero,) * self.windows[1]}
+        return {"count": count, "sums": sums, "history": (zero,) * self.windows[-1]}
 
     def reset_rows(self, state: dict, mask: Tensor) -> dict:
         """Restart the rows of bool ``mask`` ``[N]`` (their next sample is a flight's first)."""
         mask = mask.reshape(-1)
         out = dict(state)
         out["count"] = torch.where(mask, 0, state["count"])
-        m = mask.unsqueeze(-1)
-        for key in ("sum_short", "sum_long", "prev_ref_pos", "prev_ref_vel"):
+        for key in ("sums", "prev_ref_pos", "prev_ref_vel"):
             if key in state:
+                m = mask.reshape(-1, *(1,) * (state[key].dim() - 1))
                 out[key] = torch.where(m, torch.zeros_like(state[key]), state[key])
         # history rows need no reset: samples from before the restart are masked by ``count``
         return out
@@ -247,22 +270,19 @@ class FeatureExtractor:
             (kin[2], kin[1], acc_n, acc_e, aero_n, aero_e, aero_u, aero_h, kin[7], kin[8], u_t), -1
         )  # TRAILING_SIGNALS order
         hist = state["history"]
-        w_short, w_long = self.windows
         prev = state["count"].unsqueeze(-1)
         xd = x.to(torch.float64)
-        out_short = torch.where(prev >= w_short, hist[-w_short].to(torch.float64), 0.0)
-        out_long = torch.where(prev >= w_long, hist[-w_long].to(torch.float64), 0.0)
-        sum_short = state["sum_short"] + xd - out_short
-        sum_long = state["sum_long"] + xd - out_long
+        # the sample leaving each window, once the flight is longer than the window
+        leaving = torch.stack([torch.where(prev >= w, hist[-w].to(torch.float64), 0.0) for w in self.windows], -2)
+        sums = state["sums"] + xd.unsqueeze(-2) - leaving  # [N, windows, signals]
         c = count.unsqueeze(-1).to(torch.float64)
-        avg_short = (sum_short / c.clamp_max(w_short)).to(torch.float32)
-        avg_long = (sum_long / c.clamp_max(w_long)).to(torch.float32)
+        avgs = torch.cat([(sums[..., i, :] / c.clamp_max(w)).to(torch.float32) for i, w in enumerate(self.windows)], -1)
 
         inst = torch.stack(
             kin + [cmd[..., 0], cmd[..., 1], cmd[..., 2], cmd[..., 3], *sf_b, aero_n, aero_e, aero_u, aero_h, tilt, sat], -1
         )
-        feats = torch.cat((inst, avg_short, avg_long), -1)
-        new = {"count": count, "sum_short": sum_short, "sum_long": sum_long, "history": hist[1:] + (x,)}
+        feats = torch.cat((inst, avgs), -1)
+        new = {"count": count, "sums": sums, "history": hist[1:] + (x,)}
         return new, feats
 
     def _vertical(self, state, record, meas, kin, count) -> tuple[dict, Tensor]:
@@ -305,6 +325,21 @@ class FeatureExtractor:
         return out
 
 
-def make_extractor(schema: Schema, config: EnvConfig | None = None, **kwargs) -> FeatureExtractor:
-    """The extractor for ``schema`` with the vehicle mass and log rate of ``config``."""
-    return FeatureExtractor.from_config(schema, config, **kwargs)
+def make_extractor(
+    schema: Schema, config: EnvConfig | None = None, channels: tuple[str, ...] | None = None, **kwargs
+) -> FeatureExtractor:
+    """The extractor for ``schema`` with the vehicle mass and log rate of ``config``.
+
+    ``channels`` (an estimator's, e.g. a checkpoint's): the extractor that makes exactly those
+    channels, its trailing windows read from their names; a list no extractor makes is refused."""
+    if channels is not None and schema == "horizontal":
+        kwargs.setdefault("windows", trailing_windows_of(tuple(channels)) or TRAILING_WINDOWS)
+    fx = FeatureExtractor.from_config(schema, config, **kwargs)
+    if channels is not None and tuple(channels) != fx.channels:
+        missing = [c for c in fx.channels if c not in channels]
+        extra = [c for c in channels if c not in fx.channels]
+        raise ValueError(
+            f"estimator channels ({len(channels)}) are not the {schema!r} feature extractor's ({fx.num_channels}; "
+            f"missing {missing[:5]}, unexpected {extra[:5]}): retrain or pick the matching schema"
+        )
+    return fx

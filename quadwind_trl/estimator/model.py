@@ -1,6 +1,6 @@
 """The attention-GRU wind estimator network (paper, Section "Architecture").
 
-A single-layer unidirectional GRU encodes the feature window; Bahdanau additive attention, queried
+A unidirectional GRU (one layer in the paper) encodes the feature window; Bahdanau additive attention, queried
 by the final hidden state, pools the hidden states of that window only (causal); the context and
 the final state go through a three-layer MLP head (GELU, LayerNorm, dropout) to the standardised
 (north, east) mean wind.
@@ -19,6 +19,7 @@ class EstimatorConfig:
     hidden: int = 128  # paper
     attention_dim: int = 128  # paper
     head_hidden: tuple[int, int] = (128, 64)
+    gru_layers: int = 1  # paper: a single layer
     dropout: float = 0.2  # paper (head)
     feature_dropout: float = 0.0  # paper: 0.1 for the vertical model
     window: int = 60  # paper: 6 s at 10 Hz
@@ -46,7 +47,7 @@ class AttentionGRUEstimator(nn.Module):
         super().__init__()
         self.cfg = cfg
         self.feature_dropout = nn.Dropout(cfg.feature_dropout)
-        self.gru = nn.GRU(cfg.in_channels, cfg.hidden, num_layers=1, batch_first=True)
+        self.gru = nn.GRU(cfg.in_channels, cfg.hidden, num_layers=cfg.gru_layers, batch_first=True)
         self.attention = AdditiveAttention(cfg.hidden, cfg.attention_dim)
         h1, h2 = cfg.head_hidden
         self.head = nn.Sequential(

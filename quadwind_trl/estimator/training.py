@@ -43,11 +43,12 @@ import torch
 from torch import Tensor
 
 from ..data.generate import load_dataset
-from ..data.windows import SPLIT_FRACTIONS, WindowedData, compute_features, prepare_windows, window_table
+from ..data.windows import SPLIT_FRACTIONS, WINDOW, WindowedData, compute_features, prepare_windows, window_table
 from ..manifest import CheckpointParts, git_commit, platform_info, repo_relative, save_atomic
 from ..outputs import OutputLock, truncate_scalar_logs
+from .base import WindEstimator
 from .checkpoint import EstimatorBundle
-from .features import make_extractor
+from .features import TRAILING_WINDOWS, FeatureExtractor, make_extractor
 from .loss import EstimatorLoss, EstimatorLossConfig
 from .metrics import estimation_metrics
 from .model import AttentionGRUEstimator, EstimatorConfig
@@ -78,6 +79,13 @@ class TrainConfig:
     compile: bool = False
     log_every_steps: int = 50
     loss: EstimatorLossConfig = field(default_factory=EstimatorLossConfig)
+    # the inputs and the network (issue 27's experiments; the defaults are the paper's)
+    window: int = WINDOW  # samples the network reads per estimate (60 = 6 s at 10 Hz)
+    trailing_windows: tuple[int, ...] = TRAILING_WINDOWS  # trailing-mean lengths of the horizontal features, samples
+    hidden: int = 128  # GRU state and attention width
+    gru_layers: int = 1
+    head_hidden: tuple[int, int] = (128, 64)
+    train_fraction: float = 1.0  # share of the training cases used (validation and test unchanged)
 
     def __post_init__(self):
         if self.regime not in REGIMES:
@@ -91,6 +99,13 @@ class TrainConfig:
             raise ValueError("TrainConfig.feature_dropout and head_dropout must lie in [0, 1)")
         if self.lr <= 0 or self.input_noise_std < 0 or not 0 <= self.min_lr_ratio <= 1:
             raise ValueError("TrainConfig: lr must be > 0, input_noise_std >= 0, min_lr_ratio in [0, 1]")
+        for name, low in (("window", 2), ("hidden", 1), ("gru_layers", 1)):
+            if getattr(self, name) < low:
+                raise ValueError(f"TrainConfig.{name}={getattr(self, name)} must be >= {low}")
+        if len(self.head_hidden) != 2 or min(self.head_hidden) < 1:
+            raise ValueError(f"TrainConfig.head_hidden={self.head_hidden!r}: two layer widths >= 1 allowed")
+        if not 0.0 < self.train_fraction <= 1.0:
+            raise ValueError(f"TrainConfig.train_fraction={self.train_fraction!r}; allowed: (0, 1]")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -99,6 +114,9 @@ class TrainConfig:
     def from_dict(cls, d: dict) -> "TrainConfig":
         d = dict(d)
         d["loss"] = EstimatorLossConfig(**d.get("loss", {}))
+        for name in ("trailing_windows", "head_hidden"):  # JSON round trips make tuples lists
+            if name in d:
+                d[name] = tuple(d[name])
         known = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in known})
 
@@ -152,11 +170,26 @@ class EstimatorData:
         return self.manifest["regime"]
 
 
+def features_file(path: Path, fx: FeatureExtractor) -> Path:
+    """The feature cache of ``fx`` in dataset ``path``: ``features_<regime>.memmap`` for the
+    default extractor, the trailing windows in the name for others."""
+    default = fx.schema == "vertical" or fx.windows == TRAILING_WINDOWS
+    return path / (f"features_{fx.schema}.memmap" if default else f"features_{fx.schema}_avg{'-'.join(map(str, fx.windows))}.memmap")
+
+
 def load_estimator_data(
-    path: str | os.PathLike, regime: str, *, quick: bool = False, progress: bool = True, fractions=SPLIT_FRACTIONS
+    path: str | os.PathLike,
+    regime: str,
+    *,
+    quick: bool = False,
+    progress: bool = True,
+    fractions=SPLIT_FRACTIONS,
+    window: int = WINDOW,
+    trailing_windows: tuple[int, ...] = TRAILING_WINDOWS,
+    train_fraction: float = 1.0,
 ) -> EstimatorData:
     """Load a generated dataset, compute (or load the cached) features of ``regime``'s schema
-    into ``path/features_<regime>.memmap`` and prepare the windows.
+    into ``path`` (:func:`features_file`) and prepare the windows of ``window`` samples.
 
     With ``quick`` and a dataset too small for the 70/15/15 split to give every split a case
     (fewer than about 7 cases), the cases are split in thirds instead."""
@@ -164,12 +197,13 @@ def load_estimator_data(
     data, manifest = load_dataset(path)
     if manifest["regime"] != regime:
         raise ValueError(f"{path} is a {manifest['regime']!r} dataset, not {regime!r} (--regime)")
-    fx = make_extractor(regime)
-    feats = compute_features(data["record"], fx, out=path / f"features_{regime}.memmap", progress=progress)
-    wd = prepare_windows(data, manifest, feats, fx.channels, fractions=fractions)
+    fx = make_extractor(regime, windows=tuple(trailing_windows))
+    feats = compute_features(data["record"], fx, out=features_file(path, fx), progress=progress)
+    shape = {"window": window, "train_fraction": train_fraction}
+    wd = prepare_windows(data, manifest, feats, fx.channels, fractions=fractions, **shape)
     if quick and any(wd.tables[s].shape[0] == 0 for s in ("train", "val", "test")):
         fractions = QUICK_FRACTIONS
-        wd = prepare_windows(data, manifest, feats, fx.channels, fractions=fractions)
+        wd = prepare_windows(data, manifest, feats, fx.channels, fractions=fractions, **shape)
     for split in ("train", "val"):
         if wd.tables[split].shape[0] == 0:
             raise ValueError(
@@ -185,11 +219,21 @@ def load_estimator_data(
         "num_flights": manifest["num_flights"],
         "turbulence_layout": manifest["config"]["turbulence"]["layout"],  # which field the flights flew through
         "split_fractions": list(fractions),
+        "train_fraction": train_fraction,
+        "window": window,
+        "trailing_windows": list(fx.windows) if regime == "horizontal" else None,
         "split_cases": {k: int(v.numel()) for k, v in wd.split_cases.items()},
         "split_windows": {k: int(v.shape[0]) for k, v in wd.tables.items()},
         "stride": wd.stride,
     }
     return EstimatorData(windows=wd, data=data, manifest=manifest, info=info)
+
+
+def estimator_inputs(estimator: WindEstimator) -> dict:
+    """The ``load_estimator_data`` arguments that give ``estimator`` the inputs it was trained on:
+    its window length and, for the horizontal schema, the trailing means its channel names say."""
+    fx = make_extractor(estimator.schema, channels=tuple(estimator.channels))  # refuses channels no extractor makes
+    return {"window": int(estimator.window), "trailing_windows": fx.windows}
 
 
 def split_flights(wd: WindowedData, split: str) -> Tensor:
@@ -378,8 +422,9 @@ class _Trainer(CheckpointParts):
         self.wd, self.cfg = wd, cfg
         torch.manual_seed(cfg.seed)
         self.mcfg = EstimatorConfig(
-            in_channels=len(wd.channels), feature_dropout=cfg.feature_dropout, dropout=cfg.head_dropout, window=wd.window
-        )
+            in_channels=len(wd.channels), hidden=cfg.hidden, attention_dim=cfg.hidden, head_hidden=cfg.head_hidden,
+            gru_layers=cfg.gru_layers, dropout=cfg.head_dropout, feature_dropout=cfg.feature_dropout, window=wd.window,
+        )  # fmt: skip
         self.model = AttentionGRUEstimator(self.mcfg)
         self.loss_fn = EstimatorLoss(wd.label_stats.mean, wd.label_stats.std, cfg.loss)
         self.opt = torch.optim.Adam(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
@@ -510,6 +555,13 @@ def train_estimator(
     resume state stays unfinished; tests use it to check that resuming retraces the run)."""
     if cfg.regime != ed.regime:
         raise ValueError(f"TrainConfig.regime={cfg.regime!r} but the dataset is {ed.regime!r}")
+    wanted = {"window": cfg.window, "train_fraction": cfg.train_fraction}
+    if ed.regime == "horizontal":
+        wanted["trailing_windows"] = list(cfg.trailing_windows)
+    prepared = {k: ed.info.get(k) for k in wanted}
+    if prepared != wanted:
+        raise ValueError(f"the dataset was prepared with {prepared} but TrainConfig asks for {wanted}: "
+                         "load it with load_estimator_data(..., window=, trailing_windows=, train_fraction=) of the config")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     # one writer per checkpoint: its resume state and its best-so-far model belong to the run too

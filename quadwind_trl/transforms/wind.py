@@ -99,12 +99,8 @@ class WindEstimate(Transform):
             if not isinstance(estimator, WindEstimator):
                 missing = [m for m in ("schema", "channels", "window", "predict", "to") if not hasattr(estimator, m)]
                 raise TypeError(f"WindEstimate: {type(estimator).__name__} is not a WindEstimator (missing {missing})")
-            extractor = make_extractor(estimator.schema, cfg)
-            if tuple(estimator.channels) != tuple(extractor.channels):
-                raise ValueError(
-                    f"estimator channels ({len(estimator.channels)}) differ from the {estimator.schema!r} feature "
-                    f"extractor's ({extractor.num_channels}): retrain or pick the matching schema"
-                )
+            # the extractor that makes the estimator's channels (its trailing means read from their names)
+            extractor = make_extractor(estimator.schema, cfg, channels=tuple(estimator.channels))
             in_keys = list(extractor.raw_keys) + ["step"]
         else:
             extractor = None
