@@ -18,8 +18,11 @@ from quadwind_trl.evaluation.estimation import (
     FlightSequences,
     bin_index,
     bin_labels,
+    FLIGHT_AGGREGATES,
     ema_sweep,
     evaluate_sequences,
+    flight_aggregates,
+    per_flight_aggregation,
     predict_flights,
     turbulence_floor,
 )
@@ -437,3 +440,29 @@ def test_train_recipe_quick_runs_end_to_end(quick_vertical, tmp_path):
     # the wrong regime for the dataset fails with a message naming it (the recipe reports it)
     with pytest.raises(ValueError, match="'vertical' dataset, not 'horizontal'"):
         load_estimator_data(quick_vertical, "horizontal", progress=False)
+
+
+def test_flight_aggregates_by_hand():
+    """Two flights, the second with 3 real windows and 2 of padding: each rule by hand."""
+    north = torch.tensor([[1.0, 9.0, 2.0, 4.0, 3.0], [5.0, 1.0, 3.0, 7.0, 7.0]])
+    pred = torch.stack((north, -north), -1)
+    mask = torch.tensor([[True] * 5, [True, True, True, False, False]])
+    true = torch.zeros(2, 5, 2)
+    true[1, :, 0] = 1.0  # flight 1's label (1, 0); the padding's values must not count
+    true[1, 3:, 0] = 50.0
+    seq = FlightSequences(
+        flights=torch.tensor([0, 1]), pred=pred, true=true, altitude=torch.zeros(2, 5), wind=true,
+        end=torch.arange(5).expand(2, 5), mask=mask, traj_id=torch.tensor([0, 1]), case_id=torch.tensor([0, 1]), dt_s=0.1,
+    )  # fmt: skip
+    agg = flight_aggregates(seq)
+    expect_north = {  # flight 0: 1 9 2 4 3 (sorted 1 2 3 4 9); flight 1: 5 1 3
+        "mean": (19 / 5, 3.0), "median": (3.0, 3.0), "trimmed_mean_20": (3.0, 3.0),  # 20 % of 5 = 1 off each end; of 3 = 0
+        "second_half_mean": ((2 + 4 + 3) / 3, (1 + 3) / 2), "last": (3.0, 3.0),
+    }
+    for name, (a, b) in expect_north.items():
+        torch.testing.assert_close(agg[name], torch.tensor([[a, -a], [b, -b]], dtype=torch.float64), msg=name)
+    assert agg["label"].tolist() == [[0.0, 0.0], [1.0, 0.0]]
+    rmse = per_flight_aggregation(seq)
+    assert set(rmse) == set(FLIGHT_AGGREGATES)
+    assert rmse["mean"] == pytest.approx(evaluate_sequences(seq, ["a", "b"])["summary"]["per_flight_vector_rmse"])
+    assert rmse["last"] == pytest.approx(math.sqrt((18 + (2 * 2 + 3 * 3)) / 2))

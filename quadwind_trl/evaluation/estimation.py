@@ -318,6 +318,49 @@ def ema_sweep(
     return out
 
 
+#: how one flight's sequence of estimates becomes its per-flight estimate (issue 27): the
+#: paper's mean over every window, the middle of the ordered estimates, and the estimate made
+#: last or over the flight's second half, when the trailing means have seen the most of it
+FLIGHT_AGGREGATES: tuple[str, ...] = ("mean", "median", "trimmed_mean_20", "second_half_mean", "last")
+
+
+def flight_aggregates(seq: FlightSequences, pred: Tensor | None = None) -> dict[str, Tensor]:
+    """Each :data:`FLIGHT_AGGREGATES` rule applied to every flight's estimates (``pred`` overrides
+    the stored ones), and ``"label"``, the flight mean of the labels every rule is scored against:
+    ``{name: [n, 2]}``, m/s. Component-wise for the median and the trimmed mean."""
+    p = (seq.pred if pred is None else pred).to(torch.float64)
+    m = seq.mask
+    count = m.sum(1)  # windows per flight; real windows come first in each row
+    idx = torch.arange(m.shape[1])[None, :]
+
+    def mean_over(rows: Tensor, values: Tensor) -> Tensor:
+        w = rows.to(torch.float64).unsqueeze(-1)
+        return (values.to(torch.float64) * w).sum(1) / w.sum(1).clamp_min(1.0)
+
+    # the padding sorts last (+inf), so each flight's ordered estimates are its first count entries
+    ordered = torch.where(m.unsqueeze(-1), p, torch.inf).sort(dim=1).values
+    k = count[:, None]
+    cut = (0.2 * count).floor().long()[:, None]  # 20 % off each end
+    median_at = ((count - 1) // 2)[:, None, None].expand(-1, 1, 2)
+    last_at = (count - 1).clamp_min(0)[:, None, None].expand(-1, 1, 2)
+    return {
+        "mean": mean_over(m, p),
+        "median": ordered.gather(1, median_at)[:, 0],
+        "trimmed_mean_20": mean_over((idx >= cut) & (idx < k - cut), torch.where(m.unsqueeze(-1), ordered, 0.0)),
+        "second_half_mean": mean_over(m & (idx >= k // 2), p),
+        "last": p.gather(1, last_at)[:, 0],
+        "label": mean_over(m, seq.true),
+    }
+
+
+def per_flight_aggregation(seq: FlightSequences, pred: Tensor | None = None) -> dict[str, float]:
+    """Per-flight vector RMSE (m/s) of each :data:`FLIGHT_AGGREGATES` rule over the flights with
+    windows; ``"mean"`` is ``per_flight_vector_rmse``."""
+    agg = flight_aggregates(seq, pred)
+    has = seq.mask.any(1)
+    return {name: vector_rmse(agg[name][has], agg["label"][has]) for name in FLIGHT_AGGREGATES}
+
+
 def best_tau(sweep: dict[float, dict[str, float]], key: str = "per_window_vector_rmse") -> float:
     """The time constant with the lowest ``key``."""
     return min(sweep, key=lambda t: sweep[t][key])

@@ -15,7 +15,7 @@ from ..envs.trajectories import trajectory_names
 from ..estimator.base import WindEstimator
 from ..estimator.ema import EMAConfig
 from ..estimator.training import EstimatorData, split_flights
-from .estimation import FlightSequences, best_tau, ema_sweep, evaluate_sequences, predict_flights
+from .estimation import FlightSequences, best_tau, ema_sweep, evaluate_sequences, per_flight_aggregation, predict_flights
 
 
 @dataclass
@@ -78,6 +78,9 @@ def run_estimation(
     tau_best = best_tau(sweep)
     results["val_ema_sweep"] = {str(k): v for k, v in sweep.items()}
     results["val_best_tau_s"] = tau_best
+    # how each flight's estimates become one per-flight estimate: raw and at the validation-best tau
+    filters = {0.0: None, **({tau_best: val.filtered(EMAConfig(tau_s=tau_best, dt_s=val.dt_s))} if tau_best else {})}
+    results["val_flight_aggregation"] = {str(t): per_flight_aggregation(val, f) for t, f in filters.items()}
     del val
 
     test = flight_sequences(estimator, ed, split_flights(ed.windows, "test"), stride, batch, "test")
@@ -85,6 +88,9 @@ def run_estimation(
     filtered_taus = sorted({paper_tau_s, tau_best} - {0.0})
     test_f = _filtered(test, filtered_taus)
     results["test_ema"] = {str(tau): evaluate_sequences(test, names, pred=f)["summary"] for tau, f in test_f.items()}
+    results["test_flight_aggregation"] = {
+        str(t): per_flight_aggregation(test, test_f[t] if t else None) for t in ([0.0, tau_best] if tau_best else [0.0])
+    }
     run = EstimationRun(regime, paper_tau_s, results, sweep, tau_best, filtered_taus, test, test_f)
 
     if unseen is not None:
