@@ -51,3 +51,23 @@ def test_a_network_with_other_inputs_trains_evaluates_and_flies(short_horizontal
     west = next(t for t in env.transform if hasattr(t, "ring") and t.ring is not None)
     assert west.ring.windows(torch.arange(2)).shape == (2, 20, 59)
 
+
+
+def test_the_experiments_table_names_what_each_run_changed():
+    from quadwind_trl.estimator.training import TrainConfig
+    from quadwind_trl.evaluation.estimation_experiments import config_change, experiments_markdown
+
+    shipped = TrainConfig().to_dict()
+    # a reference from before the input settings existed: their defaults are its values
+    old = {k: v for k, v in shipped.items() if k not in ("window", "trailing_windows", "hidden", "gru_layers")}
+    run = TrainConfig(trailing_windows=(100, 300, 1200), seed=1, compile=True).to_dict()
+    run["loss"]["direction_weight"] = 0.0
+    assert config_change(run, old) == "seed 0 -> 1; loss.direction_weight 0.05 -> 0.0; trailing_windows 100-300 -> 100-300-1200"
+    assert config_change(TrainConfig().to_dict(), old) == "none (the shipped recipe)"
+    val = {"per_window_vector_rmse": 1.5, "per_flight_vector_rmse": 0.8, "direction_mae_deg": 4.0, "vector_skill": 0.9}
+    ref = {"config": old, "val_metrics": val, "best_epoch": 24, "epochs_run": 25, "parameters": 10}
+    better = {**ref, "config": run, "val_metrics": {**val, "per_window_vector_rmse": 1.25}, "command": "python x", "git_commit": "abc"}
+    md = experiments_markdown(ref, [("results/experiments/estimator/t.pt", better)], [])
+    row = next(line for line in md.splitlines() if line.startswith("| `results/experiments/estimator/t.pt`"))
+    assert "| 1.250 | -0.250 | 0.800 |" in row and "trailing_windows 100-300 -> 100-300-1200" in row
+    assert "- `results/experiments/estimator/t.pt`: `python x` (commit `abc`)" in md

@@ -1,0 +1,103 @@
+"""The estimator experiments (issue 27, item 2) as markdown: each training run's validation
+figures beside the shipped recipe's, what it changed, and the test figures of the runs chosen
+on validation only (``recipes/estimator_experiments.py`` writes the section).
+
+A training manifest (``recipes/train_estimator.py``'s JSON beside a checkpoint) holds the run's
+configuration and its best validation epoch (``val_metrics``: every validation flight, windows
+every 4.8 s); what a run changed is the difference of its configuration from the reference's,
+so no row is labelled by hand.
+"""
+from __future__ import annotations
+
+from ..estimator.training import TrainConfig
+from .estimation import FLIGHT_AGGREGATES
+from .estimation_tables import fmt, table
+
+#: configuration entries that do not change what is learned
+IGNORED = ("compile", "log_every_steps", "eval_batch_size", "test_stride")
+
+
+def flatten(config: dict, prefix: str = "") -> dict:
+    out = {}
+    for k, v in config.items():
+        if isinstance(v, dict):
+            out.update(flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = tuple(v) if isinstance(v, list) else v
+    return out
+
+
+def config_change(config: dict, reference: dict) -> str:
+    """``key: reference -> run`` for each setting that differs (defaults of settings the
+    reference predates are the reference's values: a run that left them alone changed nothing)."""
+    run, ref = flatten(config), flatten(reference)
+    changes = []
+    for key, value in run.items():
+        before = ref.get(key, DEFAULTS.get(key))
+        if key not in IGNORED and before != value:
+            changes.append(f"{key} {_show(before)} -> {_show(value)}")
+    return "; ".join(changes) or "none (the shipped recipe)"
+
+
+def _show(v) -> str:
+    return "-".join(map(str, v)) if isinstance(v, tuple) else str(v)
+
+
+DEFAULTS = flatten(TrainConfig().to_dict())
+
+
+def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluations: list[tuple[str, dict, str]]) -> str:
+    """``reference``: the shipped checkpoint's manifest; ``runs``: ``(path, manifest)`` of each
+    experiment's checkpoint; ``evaluations``: ``(label, evaluate_estimator JSON, path)`` of the
+    shipped estimator and of the runs chosen on validation, for the test table and the per-flight
+    aggregation table."""
+    ref_val = reference["val_metrics"]
+    rows = []
+    runs = [("quadwind_trl/checkpoints/estimator_horizontal.pt (shipped)", reference)] + list(runs)
+    for path, m in runs:
+        v = m["val_metrics"]
+        wall = (m.get("history_tail") or [{}])[-1].get("wall_time_s")
+        rows.append([f"`{path}`", config_change(m["config"], reference["config"]), fmt(m.get("parameters")),
+                     f"{m['best_epoch']} / {m['epochs_run']}", fmt(v["per_window_vector_rmse"], 3),
+                     f"{v['per_window_vector_rmse'] - ref_val['per_window_vector_rmse']:+.3f}",
+                     fmt(v["per_flight_vector_rmse"], 3), fmt(v["direction_mae_deg"], 2), fmt(v.get("vector_skill"), 3),
+                     fmt(wall / 60 if wall else None, 0)])  # fmt: skip
+    md = [
+        "### Validation (the selection): best epoch of each run, every validation flight, windows every 4.8 s", "",
+        table(["checkpoint", "changed", "parameters", "best / run epochs", "per-window (m/s)", "vs shipped",
+               "per-flight (m/s)", "direction MAE (deg)", "vector skill", "training (min)"], rows), "",
+    ]  # fmt: skip
+    md += ["Training commands and commits:", ""]
+    md += [f"- `{path}`: `{m.get('command')}` (commit `{m.get('git_commit')}`)" for path, m in runs]
+    md.append("")
+    if not evaluations:
+        return "\n".join(md)
+    test_rows, agg_rows = [], []
+    for label, r, _ in evaluations:
+        s, floor, tau = r["test"]["summary"], r["test"]["turbulence_floor"], r["val_best_tau_s"]
+        ema = s if tau == 0 else r["test_ema"][str(tau)]
+        val_agg = r.get("val_flight_aggregation", {})
+        test_rows.append([label, fmt(s["per_window_vector_rmse"]), f"{fmt(ema['per_window_vector_rmse'])} ({tau:g} s)",
+                          fmt(s["per_flight_vector_rmse"]), fmt(floor["turbulence_rmse_flight_mean"]),
+                          f"{s['per_flight_vector_rmse'] - floor['turbulence_rmse_flight_mean']:+.2f}",
+                          fmt(s["direction_mae_deg"], 1), fmt(s["vector_skill"], 3)])  # fmt: skip
+        for t, rules in val_agg.items():
+            best = min(rules, key=rules.get)
+            test = r.get("test_flight_aggregation", {}).get(t, {})
+            agg_rows.append([label, "raw" if float(t) == 0 else f"EMA {float(t):g} s"]
+                            + [fmt(rules[k], 3) + (" **best**" if k == best else "") for k in FLIGHT_AGGREGATES]
+                            + [f"{best}: {fmt(test.get(best), 3)} (mean: {fmt(test.get('mean'), 3)})"])  # fmt: skip
+    md += [
+        "### Test cases (flown once, for the shipped estimator and the runs chosen on validation)", "",
+        table(["estimator", "per-window raw (m/s)", "per-window EMA (validated tau)", "per-flight raw (m/s)",
+               "flight-mean floor (m/s)", "per-flight - floor", "direction MAE (deg)", "vector skill"], test_rows), "",
+    ]  # fmt: skip
+    if agg_rows:
+        md += [
+            "### Per-flight aggregation: how a flight's estimates become one (validation per-flight RMSE, m/s; "
+            "the rule chosen there, on test)", "",
+            table(["estimator", "estimates"] + list(FLIGHT_AGGREGATES) + ["test, chosen rule"], agg_rows), "",
+        ]  # fmt: skip
+    md += ["Evaluation commands and commits:", ""]
+    md += [f"- {label}: `{r['command']}` (commit `{r.get('git_commit')}`; `{path}`)" for label, r, path in evaluations]
+    return "\n".join(md)
