@@ -24,6 +24,7 @@ from quadwind_trl.evaluation.estimation import (
     flight_aggregates,
     per_flight_aggregation,
     predict_flights,
+    trailing_mean_floor,
     turbulence_floor,
 )
 from quadwind_trl.estimator.metrics import (
@@ -466,3 +467,20 @@ def test_flight_aggregates_by_hand():
     assert set(rmse) == set(FLIGHT_AGGREGATES)
     assert rmse["mean"] == pytest.approx(evaluate_sequences(seq, ["a", "b"])["summary"]["per_flight_vector_rmse"])
     assert rmse["last"] == pytest.approx(math.sqrt((18 + (2 * 2 + 3 * 3)) / 2))
+
+
+def test_trailing_mean_floor_by_hand():
+    """Wind 0, 1, 2, ... (north) over a constant label 0: the trailing mean of the last w samples
+    ending at e is e - (w - 1) / 2, expanding (e / 2) before the flight has w samples."""
+    t_len = 20
+    wind = torch.zeros(2, t_len, 2)
+    wind[1, :, 0] = torch.arange(t_len, dtype=torch.float32)
+    labels = torch.zeros(2, t_len, 2)
+    table = torch.tensor([[1, 3], [1, 15], [0, 15]])
+    floor = trailing_mean_floor(wind, labels, table, [1, 4, 10])
+    for w, (a, b) in {1: (3.0, 15.0), 4: (1.5, 13.5), 10: (1.5, 10.5)}.items():
+        assert floor[w] == pytest.approx(math.sqrt((a * a + b * b) / 3)), w
+    # from flight 1's sample 2 on: the mean of 2..3 is 2.5 and, with w = 10, of 6..15 still 10.5
+    since = trailing_mean_floor(wind, labels, table, [10, 100], first=torch.tensor([0, 2]))
+    assert since[10] == pytest.approx(math.sqrt((2.5**2 + 10.5**2) / 3))
+    assert since[100] == pytest.approx(math.sqrt((2.5**2 + 8.5**2) / 3))

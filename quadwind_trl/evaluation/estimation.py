@@ -267,6 +267,30 @@ def turbulence_floor(seq: FlightSequences, rows: Tensor | None = None) -> dict[s
     return out
 
 
+def trailing_mean_floor(
+    wind: Tensor, labels: Tensor, table: Tensor, lengths: Sequence[int], first: Tensor | None = None
+) -> dict[int, float]:
+    """Per-window vector RMSE (m/s) of the true total wind ``wind`` ``[n, T, 2]`` averaged over the
+    last ``w`` samples of each window end in ``table`` (``[W, 2]`` rows of (flight, end sample))
+    against the mean-wind ``labels`` ``[n, T, 2]``, for each ``w`` in ``lengths``: what a perfect
+    air sensor whose reading is averaged like a trailing-mean feature would score. The mean
+    expands from the flight's first sample while the flight is shorter than ``w``, as the
+    features' do; with ``first`` (``[n]``, a first sample per flight, e.g. the crop where the
+    pattern begins) it expands from there instead."""
+    flights, inverse = torch.unique(table[:, 0], return_inverse=True)
+    end = table[:, 1]
+    csum = torch.as_tensor(wind[flights]).to(torch.float64).cumsum(1)  # [f, T, 2]
+    csum = torch.cat((torch.zeros_like(csum[:, :1]), csum), 1)  # csum[:, k] = sum of the first k samples
+    true = torch.as_tensor(labels[flights]).to(torch.float64)[inverse, end]
+    out = {}
+    earliest = torch.zeros_like(end) if first is None else torch.as_tensor(first)[table[:, 0]].to(end.dtype)
+    for w in lengths:
+        start = torch.maximum(end + 1 - w, earliest).clamp_min(0)
+        mean = (csum[inverse, end + 1] - csum[inverse, start]) / (end + 1 - start).unsqueeze(-1)
+        out[int(w)] = vector_rmse(mean, true)
+    return out
+
+
 def evaluate_sequences(
     seq: FlightSequences,
     trajectory_names: Sequence[str],

@@ -46,11 +46,13 @@ def _show(v) -> str:
 DEFAULTS = flatten(TrainConfig().to_dict())
 
 
-def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluations: list[tuple[str, dict, str]]) -> str:
+def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluations: list[tuple[str, dict, str]],
+                         floors: dict[str, dict[int, float]] | None = None, dt_s: float = 0.1) -> str:
     """``reference``: the shipped checkpoint's manifest; ``runs``: ``(path, manifest)`` of each
     experiment's checkpoint; ``evaluations``: ``(label, evaluate_estimator JSON, path)`` of the
     shipped estimator and of the runs chosen on validation, for the test table and the per-flight
-    aggregation table."""
+    aggregation table; ``floors``: rows of the validation windows' trailing-mean floors, each by
+    length in samples (``evaluation.estimation.trailing_mean_floor``; ``dt_s`` per sample)."""
     ref_val = reference["val_metrics"]
     rows = []
     runs = [("quadwind_trl/checkpoints/estimator_horizontal.pt (shipped)", reference)] + list(runs)
@@ -67,6 +69,14 @@ def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluati
         table(["checkpoint", "changed", "parameters", "best / run epochs", "per-window (m/s)", "vs shipped",
                "per-flight (m/s)", "direction MAE (deg)", "vector skill", "training (min)"], rows), "",
     ]  # fmt: skip
+    if floors:
+        md += [
+            "The air itself, averaged (the floor a perfect air sensor sets, on the same validation windows): the true total "
+            "wind at the vehicle averaged over the last T seconds before each window's end (expanding while there is less), "
+            "against the mean-wind label, per-window RMSE (m/s):", "",
+            table(["averaged from", *(f"last {w * dt_s:g} s" for w in next(iter(floors.values())))],
+                  [[name] + [fmt(v, 3) for v in row.values()] for name, row in floors.items()]), "",
+        ]  # fmt: skip
     md += ["Training commands and commits:", ""]
     md += [f"- `{path}`: `{m.get('command')}` (commit `{m.get('git_commit')}`)" for path, m in runs]
     md.append("")
