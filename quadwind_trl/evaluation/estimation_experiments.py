@@ -71,7 +71,8 @@ def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluati
     ]  # fmt: skip
     if floors:
         md += [
-            "The air itself, averaged (the floor a perfect air sensor sets, on the same validation windows): the true total "
+            "The air itself, averaged (a yardstick: what a perfect air sensor would score, averaged uniformly, on the same "
+            "validation windows; a network that weighs several means can do a little better): the true total "
             "wind at the vehicle averaged over the last T seconds before each window's end (expanding while there is less), "
             "against the mean-wind label, per-window RMSE (m/s):", "",
             table(["averaged from", *(f"last {w * dt_s:g} s" for w in next(iter(floors.values())))],
@@ -87,9 +88,9 @@ def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluati
         s, floor, tau = r["test"]["summary"], r["test"]["turbulence_floor"], r["val_best_tau_s"]
         ema = s if tau == 0 else r["test_ema"][str(tau)]
         val_agg = r.get("val_flight_aggregation", {})
-        test_rows.append([label, fmt(s["per_window_vector_rmse"]), f"{fmt(ema['per_window_vector_rmse'])} ({tau:g} s)",
-                          fmt(s["per_flight_vector_rmse"]), fmt(floor["turbulence_rmse_flight_mean"]),
-                          f"{s['per_flight_vector_rmse'] - floor['turbulence_rmse_flight_mean']:+.2f}",
+        test_rows.append([label, fmt(s["per_window_vector_rmse"], 3), f"{fmt(ema['per_window_vector_rmse'], 3)} ({tau:g} s)",
+                          fmt(s["per_flight_vector_rmse"], 3), fmt(floor["turbulence_rmse_flight_mean"], 3),
+                          f"{s['per_flight_vector_rmse'] - floor['turbulence_rmse_flight_mean']:+.3f}",
                           fmt(s["direction_mae_deg"], 1), fmt(s["vector_skill"], 3)])  # fmt: skip
         for t, rules in val_agg.items():
             best = min(rules, key=rules.get)
