@@ -136,6 +136,8 @@ def main() -> None:
             inputs = estimator_inputs(bundle)
         except (FileNotFoundError, ValueError) as err:
             p.error(str(err))
+        if bundle.schema != regime:  # before the dataset's features are loaded or computed
+            p.error(f"{ckpt} is a {bundle.schema!r} estimator, not {regime!r} (--regime)")
     try:
         ed = load_estimator_data(args.data, regime, quick=args.quick, **inputs)
     except (FileNotFoundError, ValueError) as err:
@@ -143,8 +145,6 @@ def main() -> None:
     if model_based:
         estimator, manifest = model_based_estimator(args.checkpoint, regime, ed.manifest)
     else:
-        if bundle.schema != regime:
-            p.error(f"{ckpt} is a {bundle.schema!r} estimator, not {regime!r} (--regime)")
         manifest = bundle.manifest
         trained_on = manifest.get("dataset", {}).get("manifest_sha256")
         if trained_on and trained_on != ed.info["manifest_sha256"]:
