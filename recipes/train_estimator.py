@@ -16,6 +16,8 @@ results/experiments/, never over the shipped checkpoint), e.g. trailing means of
     python recipes/train_estimator.py --regime horizontal --data data/flights_horizontal \
         --trailing-s 10 30 60 120 --out results/experiments/estimator/trailing120.pt
     ... --gru-layers 2    ... --train-fraction 0.5    ... --speed-weight 0 --direction-weight 0
+    python recipes/train_estimator.py --regime vertical --data data/flights_vertical --trailing-s 10 30 \
+        --out results/experiments/estimator/vertical_trailing_10_30.pt
 """
 from __future__ import annotations
 
@@ -51,8 +53,9 @@ def main() -> None:
     p.add_argument("--resume", action="store_true", help="continue the interrupted run writing --out (none: start one)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing checkpoint at --out")
     p.add_argument("--window", type=int, default=None, help="samples per input window (default 60 = 6 s at 10 Hz)")
-    p.add_argument("--trailing-s", type=float, nargs="+", default=None,
-                   help="lengths of the horizontal features' trailing means, s (default 10 30)")
+    p.add_argument("--trailing-s", type=float, nargs="*", default=None,
+                   help="lengths of the features' trailing means, s (default: horizontal 10 30, vertical none; "
+                        "the flag alone: none)")
     p.add_argument("--hidden", type=int, default=None, help="GRU and attention width (default 128)")
     p.add_argument("--gru-layers", type=int, default=None, help="GRU depth (default 1)")
     p.add_argument("--head-hidden", type=int, nargs=2, default=None, help="the MLP head's two widths (default 128 64)")
@@ -82,8 +85,6 @@ def main() -> None:
     if args.head_hidden is not None:
         overrides["head_hidden"] = tuple(args.head_hidden)
     if args.trailing_s is not None:
-        if args.regime != "horizontal":
-            p.error("--trailing-s: only the horizontal features have trailing means")
         samples = [s / LOG_DT_S for s in args.trailing_s]
         if any(abs(n - round(n)) > 1e-6 for n in samples):
             p.error(f"--trailing-s {args.trailing_s}: each length must be a whole number of {LOG_DT_S} s samples")

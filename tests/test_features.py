@@ -245,6 +245,27 @@ def test_trailing_means_of_a_ramp(windows):
         assert torch.equal(f[:, [ch[c] for c in HORIZONTAL_CHANNELS]], base)
 
 
+def test_vertical_trailing_means():
+    """The vertical schema's optional trailing means: a constant position error and a tilted
+    thrust axis give their own values at every tick; the 22 paper channels are unchanged."""
+    fx = make_extractor("vertical", windows=(5, 30))
+    ch = {name: i for i, name in enumerate(fx.channels)}
+    rec = random_record(2, 60)
+    rec[MEAS_KEY]["gps_pos"][..., :2] = rec["ref_pos"][..., :2] + torch.tensor([0.5, -0.25])  # dX = 0.5 m east
+    rec[MEAS_KEY]["attitude"][...] = torch.tensor([0.1, 0.0, 0.0])  # roll 0.1 rad, yaw 0 (nose east): leans south
+    rec[MEAS_KEY]["accel"][...] = torch.tensor([0.0, 0.3, 9.8])  # body y specific force
+    f = fx.scan(rec)
+    for w in (5, 30):
+        assert torch.allclose(f[..., ch[f"avg{w}_dX"]], torch.tensor(0.5), atol=1e-5)
+        assert torch.allclose(f[..., ch[f"avg{w}_dY"]], torch.tensor(-0.25), atol=1e-5)
+        assert torch.allclose(f[..., ch[f"avg{w}_tilt_N"]], torch.tensor(-math.sin(0.1)), atol=1e-6)
+        assert torch.allclose(f[..., ch[f"avg{w}_tilt_E"]], torch.tensor(0.0), atol=1e-6)
+        # body y rotated by the roll into the world: (0, 0.3 cos 0.1) in (E, N)
+        assert torch.allclose(f[..., ch[f"avg{w}_sfp_N"]], torch.tensor(0.3 * math.cos(0.1)), atol=1e-5)
+        assert torch.allclose(f[..., ch[f"avg{w}_sfp_E"]], torch.tensor(0.0), atol=1e-6)
+    assert torch.equal(f[..., :22], make_extractor("vertical").scan(rec))
+
+
 def test_extractor_from_an_estimators_channels():
     """A checkpoint's channel names say which extractor made them; names no extractor makes are
     refused, naming the difference."""
@@ -252,8 +273,11 @@ def test_extractor_from_an_estimators_channels():
     assert make_extractor("horizontal", channels=fx.channels) == fx
     assert make_extractor("horizontal", channels=HORIZONTAL_CHANNELS).windows == TRAILING_WINDOWS
     assert make_extractor("vertical", channels=VERTICAL_CHANNELS).channels == VERTICAL_CHANNELS
-    with pytest.raises(ValueError, match=r"not the 'vertical' feature extractor's \(22.*unexpected"):
-        make_extractor("vertical", channels=HORIZONTAL_CHANNELS)
+    with pytest.raises(ValueError, match=r"not the 'vertical' feature extractor's \(38.*unexpected"):
+        make_extractor("vertical", channels=HORIZONTAL_CHANNELS)  # its avg100/avg300 names ask for 2 windows
+    vfx = make_extractor("vertical", windows=(100, 300))
+    assert make_extractor("vertical", channels=vfx.channels) == vfx and vfx.num_channels == 22 + 2 * 8
+    assert make_extractor("horizontal", channels=HORIZONTAL_CHANNELS[:26]).windows == ()
     with pytest.raises(ValueError, match=r"missing \['avg300_u_T'\]"):
         make_extractor("horizontal", channels=HORIZONTAL_CHANNELS[:-1])
     for bad in ((300, 100), (0, 100), (100, 100), (100, 10**6)):

@@ -59,7 +59,10 @@ RAW_KEYS_BY_SCHEMA: dict[str, tuple[str, ...]] = {
 }
 
 LOG_DT_S = 0.1  # the 10 Hz record
-TRAILING_WINDOWS: tuple[int, ...] = (100, 300)  # paper: 10 s and 30 s at 10 Hz
+TRAILING_WINDOWS: tuple[int, ...] = (100, 300)  # paper, horizontal schema: 10 s and 30 s at 10 Hz
+#: each schema's trailing-mean lengths (samples) when none are asked for: the paper's (the vertical
+#: model has none)
+DEFAULT_TRAILING_WINDOWS: dict[str, tuple[int, ...]] = {"horizontal": TRAILING_WINDOWS, "vertical": ()}
 MAX_TRAILING_WINDOW = 3000  # 300 s at 10 Hz: longer than any flight the recipes make
 
 
@@ -81,6 +84,14 @@ def raw_record_template(*shape: int) -> TensorDict:
 TRAILING_SIGNALS: tuple[str, ...] = (
     "vel_N", "vel_E", "acc_N", "acc_E", "aero_N", "aero_E", "aero_U", "aero_horiz", "roll", "pitch", "u_T",
 )  # fmt: skip
+#: the vertical schema's trailing signals (not in the paper, whose vertical model has none; issue
+#: 27's experiments). Its record carries no commanded thrust, so no aerodynamic force; and the
+#: vertical patterns turn, so body-frame angles and accelerations average out. What a steady wind
+#: leaves in a long mean, world frame (N, E): the ground velocity, the thrust axis's tilt (which
+#: leans into the wind), the accelerometer's rotor-plane specific force (drag over mass: thrust
+#: has no component there) and the horizontal position error (a steady wind offsets it)
+VERTICAL_TRAILING_SIGNALS: tuple[str, ...] = ("vel_N", "vel_E", "tilt_N", "tilt_E", "sfp_N", "sfp_E", "dX", "dY")
+TRAILING_SIGNALS_BY_SCHEMA: dict[str, tuple[str, ...]] = {"horizontal": TRAILING_SIGNALS, "vertical": VERTICAL_TRAILING_SIGNALS}
 
 
 def horizontal_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
@@ -93,14 +104,14 @@ def horizontal_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
     )
 
 
-def trailing_channels(windows: tuple[int, ...]) -> tuple[str, ...]:
+def trailing_channels(windows: tuple[int, ...], signals: tuple[str, ...] = TRAILING_SIGNALS) -> tuple[str, ...]:
     """The trailing-mean channel names, ``avg<w>_<signal>``, window by window."""
-    return tuple(f"avg{w}_{s}" for w in windows for s in TRAILING_SIGNALS)
+    return tuple(f"avg{w}_{s}" for w in windows for s in signals)
 
 
 def trailing_windows_of(channels: tuple[str, ...]) -> tuple[int, ...]:
-    """The trailing windows (samples) named by a horizontal channel list's ``avg<w>_`` channels,
-    in order: what a checkpoint's channel names say its features were."""
+    """The trailing windows (samples) named by a channel list's ``avg<w>_`` channels, in order
+    (empty if none): what a checkpoint's channel names say its features were."""
     found = []
     for name in channels:
         m = re.fullmatch(r"avg(\d+)_(.+)", name)
@@ -161,7 +172,7 @@ class FeatureExtractor:
     mass_kg: float = 2.59
     gravity_m_s2: float = GRAVITY_M_S2
     log_dt_s: float = LOG_DT_S
-    windows: tuple[int, ...] = TRAILING_WINDOWS  # trailing-mean lengths, samples (horizontal schema)
+    windows: tuple[int, ...] | None = None  # trailing-mean lengths, samples (None: DEFAULT_TRAILING_WINDOWS)
     yaw_mode: YawMode = "ref_relative"
 
     def __post_init__(self):
@@ -169,11 +180,11 @@ class FeatureExtractor:
             raise ValueError(f"FeatureExtractor.schema={self.schema!r}; allowed: 'horizontal', 'vertical'")
         if self.yaw_mode not in ("ref_relative", "wrapped"):
             raise ValueError(f"FeatureExtractor.yaw_mode={self.yaw_mode!r}; allowed: 'ref_relative', 'wrapped'")
-        w = tuple(self.windows)
-        if not w or any(not isinstance(k, int) for k in w) or list(w) != sorted(set(w)) or not 0 < w[0] <= w[-1] <= MAX_TRAILING_WINDOW:
+        w = DEFAULT_TRAILING_WINDOWS[self.schema] if self.windows is None else tuple(self.windows)
+        if any(not isinstance(k, int) for k in w) or list(w) != sorted(set(w)) or not all(0 < k <= MAX_TRAILING_WINDOW for k in w):
             raise ValueError(
-                f"FeatureExtractor.windows={self.windows!r}: one or more distinct, increasing integer sample counts "
-                f"in [1, {MAX_TRAILING_WINDOW}] allowed"
+                f"FeatureExtractor.windows={self.windows!r}: distinct, increasing integer sample counts "
+                f"in [1, {MAX_TRAILING_WINDOW}] allowed (none: no trailing means)"
             )
         object.__setattr__(self, "windows", w)
 
@@ -185,11 +196,16 @@ class FeatureExtractor:
     # --- schema ---------------------------------------------------------------------------------
 
     @property
+    def trailing_signals(self) -> tuple[str, ...]:
+        return TRAILING_SIGNALS_BY_SCHEMA[self.schema]
+
+    @property
     def channels(self) -> tuple[str, ...]:
         if self.schema == "horizontal":
             names = kinematic_channels(self.yaw_mode) + horizontal_channels(self.yaw_mode)[13:26]
-            return names + trailing_channels(self.windows)
-        return vertical_channels(self.yaw_mode)
+        else:
+            names = vertical_channels(self.yaw_mode)
+        return names + trailing_channels(self.windows, self.trailing_signals)
 
     @property
     def num_channels(self) -> int:
@@ -203,16 +219,19 @@ class FeatureExtractor:
 
     def init_state(self, batch: int, device: torch.device | str | None = None) -> dict:
         """The state before a flight's first sample, for ``batch`` rows."""
-        count = torch.zeros(batch, dtype=torch.int64, device=device)
+        state = {"count": torch.zeros(batch, dtype=torch.int64, device=device)}
         if self.schema == "vertical":
             z3 = torch.zeros(batch, 3, device=device)
-            return {"count": count, "prev_ref_pos": z3, "prev_ref_vel": z3}
-        k = len(TRAILING_SIGNALS)
-        zero = torch.zeros(batch, k, device=device)
-        sums = torch.zeros(batch, len(self.windows), k, dtype=torch.float64, device=device)  # one row per window
-        # history[-j] is the trailing-signal sample j ticks before the current one; a tuple of
-        # tensors (shifted by reference, never copied or mutated) keeps ``step`` pure and O(1)
-        return {"count": count, "sums": sums, "history": (zero,) * self.windows[-1]}
+            state.update(prev_ref_pos=z3, prev_ref_vel=z3)
+        if self.windows:
+            k = len(self.trailing_signals)
+            zero = torch.zeros(batch, k, device=device)
+            # one row of sums per window; history[-j] is the trailing-signal sample j ticks before
+            # the current one, a tuple of tensors (shifted by reference, never copied or mutated)
+            # that keeps ``step`` pure and O(1)
+            state["sums"] = torch.zeros(batch, len(self.windows), k, dtype=torch.float64, device=device)
+            state["history"] = (zero,) * self.windows[-1]
+        return state
 
     def reset_rows(self, state: dict, mask: Tensor) -> dict:
         """Restart the rows of bool ``mask`` ``[N]`` (their next sample is a flight's first)."""
@@ -249,12 +268,28 @@ class FeatureExtractor:
             roll, pitch, yaw_ch,
             *meas["gyro"].to(torch.float32).unbind(-1),
         ]  # fmt: skip
-        count = state["count"] + 1
-        if self.schema == "vertical":
-            return self._vertical(state, record, meas, kin, count)
-        return self._horizontal(state, record, kin, r, sf_b, count)
+        step = self._vertical if self.schema == "vertical" else self._horizontal
+        new, inst, x = step(state, record, meas, kin, r, sf_b)
+        new["count"] = state["count"] + 1
+        if not self.windows:
+            return new, inst
+        avgs, trailing = self._trailing(state, x, new["count"])
+        return {**new, **trailing}, torch.cat((inst, avgs), -1)
 
-    def _horizontal(self, state, record, kin, r, sf_b, count) -> tuple[dict, Tensor]:
+    def _trailing(self, state: dict, x: Tensor, count: Tensor) -> tuple[Tensor, dict]:
+        """The trailing means of this tick's signals ``x`` ``[N, k]`` (in the schema's
+        ``trailing_signals`` order), window by window, and their new running state."""
+        hist = state["history"]
+        prev = state["count"].unsqueeze(-1)
+        # the sample leaving each window, once the flight is longer than the window
+        leaving = torch.stack([torch.where(prev >= w, hist[-w].to(torch.float64), 0.0) for w in self.windows], -2)
+        sums = state["sums"] + x.to(torch.float64).unsqueeze(-2) - leaving  # [N, windows, signals]
+        c = count.unsqueeze(-1).to(torch.float64)
+        avgs = torch.cat([(sums[..., i, :] / c.clamp_max(w)).to(torch.float32) for i, w in enumerate(self.windows)], -1)
+        return avgs, {"sums": sums, "history": hist[1:] + (x,)}
+
+    def _horizontal(self, state, record, meas, kin, r, sf_b) -> tuple[dict, Tensor, Tensor]:
+        """``(state entries, instantaneous channels, trailing signals)`` of one tick."""
         cmd = record["cmd_wrench"].to(torch.float32)
         u_t = cmd[..., 0]
         m = self.mass_kg
@@ -269,23 +304,14 @@ class FeatureExtractor:
         x = torch.stack(
             (kin[2], kin[1], acc_n, acc_e, aero_n, aero_e, aero_u, aero_h, kin[7], kin[8], u_t), -1
         )  # TRAILING_SIGNALS order
-        hist = state["history"]
-        prev = state["count"].unsqueeze(-1)
-        xd = x.to(torch.float64)
-        # the sample leaving each window, once the flight is longer than the window
-        leaving = torch.stack([torch.where(prev >= w, hist[-w].to(torch.float64), 0.0) for w in self.windows], -2)
-        sums = state["sums"] + xd.unsqueeze(-2) - leaving  # [N, windows, signals]
-        c = count.unsqueeze(-1).to(torch.float64)
-        avgs = torch.cat([(sums[..., i, :] / c.clamp_max(w)).to(torch.float32) for i, w in enumerate(self.windows)], -1)
-
         inst = torch.stack(
             kin + [cmd[..., 0], cmd[..., 1], cmd[..., 2], cmd[..., 3], *sf_b, aero_n, aero_e, aero_u, aero_h, tilt, sat], -1
         )
-        feats = torch.cat((inst, avgs), -1)
-        new = {"count": count, "sums": sums, "history": hist[1:] + (x,)}
-        return new, feats
+        return {}, inst, x
 
-    def _vertical(self, state, record, meas, kin, count) -> tuple[dict, Tensor]:
+    def _vertical(self, state, record, meas, kin, r, sf_b) -> tuple[dict, Tensor, Tensor | None]:
+        """``(state entries, instantaneous channels, trailing signals or None without trailing
+        means)`` of one tick."""
         ref = record["ref_pos"].to(torch.float32)
         # the horizontal GPS position and the barometric altitude (the vehicle's altitude source)
         measured = torch.cat((meas["gps_pos"][..., :2], meas["baro_alt"]), -1).to(torch.float32)
@@ -295,8 +321,14 @@ class FeatureExtractor:
         # flight's first sample (flights start at rest)
         v_ref = torch.where(started, (ref - state["prev_ref_pos"]) / self.log_dt_s, 0.0)
         a_ref = torch.where(started, (v_ref - state["prev_ref_vel"]) / self.log_dt_s, 0.0)
-        feats = torch.cat((torch.stack(kin, -1), d, v_ref, a_ref), -1)
-        return {"count": count, "prev_ref_pos": ref, "prev_ref_vel": v_ref}, feats
+        inst = torch.cat((torch.stack(kin, -1), d, v_ref, a_ref), -1)
+        x = None
+        if self.windows:
+            # the rotor-plane part of the specific force, in the world frame: R (f_bx, f_by, 0)
+            sfp_e, sfp_n = (r[i][0] * sf_b[0] + r[i][1] * sf_b[1] for i in (0, 1))
+            # VERTICAL_TRAILING_SIGNALS order; r[i][2] is the body z axis's world component i (E, N)
+            x = torch.stack((kin[2], kin[1], r[1][2], r[0][2], sfp_n, sfp_e, d[..., 0], d[..., 1]), -1)
+        return {"prev_ref_pos": ref, "prev_ref_vel": v_ref}, inst, x
 
     # --- offline --------------------------------------------------------------------------------
 
@@ -332,8 +364,8 @@ def make_extractor(
 
     ``channels`` (an estimator's, e.g. a checkpoint's): the extractor that makes exactly those
     channels, its trailing windows read from their names; a list no extractor makes is refused."""
-    if channels is not None and schema == "horizontal":
-        kwargs.setdefault("windows", trailing_windows_of(tuple(channels)) or TRAILING_WINDOWS)
+    if channels is not None:
+        kwargs.setdefault("windows", trailing_windows_of(tuple(channels)))
     fx = FeatureExtractor.from_config(schema, config, **kwargs)
     if channels is not None and tuple(channels) != fx.channels:
         missing = [c for c in fx.channels if c not in channels]

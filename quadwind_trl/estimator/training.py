@@ -48,7 +48,7 @@ from ..manifest import CheckpointParts, git_commit, platform_info, repo_relative
 from ..outputs import OutputLock, truncate_scalar_logs
 from .base import WindEstimator
 from .checkpoint import EstimatorBundle
-from .features import TRAILING_WINDOWS, FeatureExtractor, make_extractor
+from .features import DEFAULT_TRAILING_WINDOWS, FeatureExtractor, make_extractor
 from .loss import EstimatorLoss, EstimatorLossConfig
 from .metrics import estimation_metrics
 from .model import AttentionGRUEstimator, EstimatorConfig
@@ -81,7 +81,7 @@ class TrainConfig:
     loss: EstimatorLossConfig = field(default_factory=EstimatorLossConfig)
     # the inputs and the network (issue 27's experiments; the defaults are the paper's)
     window: int = WINDOW  # samples the network reads per estimate (60 = 6 s at 10 Hz)
-    trailing_windows: tuple[int, ...] = TRAILING_WINDOWS  # trailing-mean lengths of the horizontal features, samples
+    trailing_windows: tuple[int, ...] | None = None  # trailing-mean lengths, samples (None: the regime's, DEFAULT_TRAILING_WINDOWS)
     hidden: int = 128  # GRU state and attention width
     gru_layers: int = 1
     head_hidden: tuple[int, int] = (128, 64)
@@ -106,6 +106,8 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.head_hidden={self.head_hidden!r}: two layer widths >= 1 allowed")
         if not 0.0 < self.train_fraction <= 1.0:
             raise ValueError(f"TrainConfig.train_fraction={self.train_fraction!r}; allowed: (0, 1]")
+        if self.trailing_windows is None:  # resolved here, so a manifest records what the run used
+            object.__setattr__(self, "trailing_windows", DEFAULT_TRAILING_WINDOWS[self.regime])
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -173,8 +175,9 @@ class EstimatorData:
 def features_file(path: Path, fx: FeatureExtractor) -> Path:
     """The feature cache of ``fx`` in dataset ``path``: ``features_<regime>.memmap`` for the
     default extractor, the trailing windows in the name for others."""
-    default = fx.schema == "vertical" or fx.windows == TRAILING_WINDOWS
-    return path / (f"features_{fx.schema}.memmap" if default else f"features_{fx.schema}_avg{'-'.join(map(str, fx.windows))}.memmap")
+    if fx.windows == DEFAULT_TRAILING_WINDOWS[fx.schema]:
+        return path / f"features_{fx.schema}.memmap"
+    return path / f"features_{fx.schema}_avg{'-'.join(map(str, fx.windows)) or 'none'}.memmap"
 
 
 def load_estimator_data(
@@ -185,7 +188,7 @@ def load_estimator_data(
     progress: bool = True,
     fractions=SPLIT_FRACTIONS,
     window: int = WINDOW,
-    trailing_windows: tuple[int, ...] = TRAILING_WINDOWS,
+    trailing_windows: tuple[int, ...] | None = None,
     train_fraction: float = 1.0,
 ) -> EstimatorData:
     """Load a generated dataset, compute (or load the cached) features of ``regime``'s schema
@@ -197,7 +200,7 @@ def load_estimator_data(
     data, manifest = load_dataset(path)
     if manifest["regime"] != regime:
         raise ValueError(f"{path} is a {manifest['regime']!r} dataset, not {regime!r} (--regime)")
-    fx = make_extractor(regime, windows=tuple(trailing_windows))
+    fx = make_extractor(regime, windows=None if trailing_windows is None else tuple(trailing_windows))
     feats = compute_features(data["record"], fx, out=features_file(path, fx), progress=progress)
     shape = {"window": window, "train_fraction": train_fraction}
     wd = prepare_windows(data, manifest, feats, fx.channels, fractions=fractions, **shape)
@@ -221,7 +224,7 @@ def load_estimator_data(
         "split_fractions": list(fractions),
         "train_fraction": train_fraction,
         "window": window,
-        "trailing_windows": list(fx.windows) if regime == "horizontal" else None,
+        "trailing_windows": list(fx.windows),
         "split_cases": {k: int(v.numel()) for k, v in wd.split_cases.items()},
         "split_windows": {k: int(v.shape[0]) for k, v in wd.tables.items()},
         "stride": wd.stride,
@@ -231,7 +234,7 @@ def load_estimator_data(
 
 def estimator_inputs(estimator: WindEstimator) -> dict:
     """The ``load_estimator_data`` arguments that give ``estimator`` the inputs it was trained on:
-    its window length and, for the horizontal schema, the trailing means its channel names say."""
+    its window length and the trailing means its channel names say."""
     fx = make_extractor(estimator.schema, channels=tuple(estimator.channels))  # refuses channels no extractor makes
     return {"window": int(estimator.window), "trailing_windows": fx.windows}
 
@@ -555,9 +558,7 @@ def train_estimator(
     resume state stays unfinished; tests use it to check that resuming retraces the run)."""
     if cfg.regime != ed.regime:
         raise ValueError(f"TrainConfig.regime={cfg.regime!r} but the dataset is {ed.regime!r}")
-    wanted = {"window": cfg.window, "train_fraction": cfg.train_fraction}
-    if ed.regime == "horizontal":
-        wanted["trailing_windows"] = list(cfg.trailing_windows)
+    wanted = {"window": cfg.window, "train_fraction": cfg.train_fraction, "trailing_windows": list(cfg.trailing_windows)}
     prepared = {k: ed.info.get(k) for k in wanted}
     if prepared != wanted:
         raise ValueError(f"the dataset was prepared with {prepared} but TrainConfig asks for {wanted}: "

@@ -9,6 +9,7 @@ so no row is labelled by hand.
 """
 from __future__ import annotations
 
+from ..estimator.features import DEFAULT_TRAILING_WINDOWS
 from ..estimator.training import TrainConfig
 from .estimation import FLIGHT_AGGREGATES
 from .estimation_tables import fmt, table
@@ -27,23 +28,34 @@ def flatten(config: dict, prefix: str = "") -> dict:
     return out
 
 
+def run_config(manifest: dict) -> dict:
+    """A training manifest's configuration, its trailing means those its features had: the
+    manifest's dataset entry records them where it can (the configuration of a vertical run made
+    before that schema could have trailing means says the horizontal default); manifests older
+    than the setting used the regime's default."""
+    config = dict(manifest["config"])
+    if "trailing_windows" in manifest.get("dataset", {}):
+        config["trailing_windows"] = list(manifest["dataset"]["trailing_windows"] or ())
+    elif "trailing_windows" not in config:
+        config["trailing_windows"] = list(DEFAULT_TRAILING_WINDOWS[config["regime"]])
+    return config
+
+
 def config_change(config: dict, reference: dict) -> str:
     """``key: reference -> run`` for each setting that differs (defaults of settings the
     reference predates are the reference's values: a run that left them alone changed nothing)."""
     run, ref = flatten(config), flatten(reference)
+    defaults = flatten(TrainConfig(regime=reference["regime"]).to_dict())
     changes = []
     for key, value in run.items():
-        before = ref.get(key, DEFAULTS.get(key))
+        before = ref.get(key, defaults.get(key))
         if key not in IGNORED and before != value:
             changes.append(f"{key} {_show(before)} -> {_show(value)}")
     return "; ".join(changes) or "none (the shipped recipe)"
 
 
 def _show(v) -> str:
-    return "-".join(map(str, v)) if isinstance(v, tuple) else str(v)
-
-
-DEFAULTS = flatten(TrainConfig().to_dict())
+    return ("-".join(map(str, v)) or "none") if isinstance(v, tuple) else str(v)
 
 
 def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluations: list[tuple[str, dict, str]],
@@ -53,19 +65,21 @@ def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluati
     shipped estimator and of the runs chosen on validation, for the test table and the per-flight
     aggregation table; ``floors``: rows of the validation windows' trailing-mean floors, each by
     length in samples (``evaluation.estimation.trailing_mean_floor``; ``dt_s`` per sample)."""
-    ref_val = reference["val_metrics"]
+    ref_val, regime = reference["val_metrics"], reference["config"]["regime"]
     rows = []
-    runs = [("quadwind_trl/checkpoints/estimator_horizontal.pt (shipped)", reference)] + list(runs)
+    runs = [(f"quadwind_trl/checkpoints/estimator_{regime}.pt (shipped)", reference)] + list(runs)
     for path, m in runs:
         v = m["val_metrics"]
         wall = (m.get("history_tail") or [{}])[-1].get("wall_time_s")
-        rows.append([f"`{path}`", config_change(m["config"], reference["config"]), fmt(m.get("parameters")),
+        rows.append([f"`{path}`", config_change(run_config(m), run_config(reference)), fmt(m.get("parameters")),
                      f"{m['best_epoch']} / {m['epochs_run']}", fmt(v["per_window_vector_rmse"], 3),
                      f"{v['per_window_vector_rmse'] - ref_val['per_window_vector_rmse']:+.3f}",
                      fmt(v["per_flight_vector_rmse"], 3), fmt(v["direction_mae_deg"], 2), fmt(v.get("vector_skill"), 3),
                      fmt(wall / 60 if wall else None, 0)])  # fmt: skip
+    stride_s = (reference["config"].get("val_stride") or 1) * dt_s
     md = [
-        "### Validation (the selection): best epoch of each run, every validation flight, windows every 4.8 s", "",
+        f"### {regime.capitalize()} validation (the selection): best epoch of each run, every validation flight, "
+        f"windows every {stride_s:g} s", "",
         table(["checkpoint", "changed", "parameters", "best / run epochs", "per-window (m/s)", "vs shipped",
                "per-flight (m/s)", "direction MAE (deg)", "vector skill", "training (min)"], rows), "",
     ]  # fmt: skip
@@ -99,13 +113,13 @@ def experiments_markdown(reference: dict, runs: list[tuple[str, dict]], evaluati
                             + [fmt(rules[k], 3) + (" **best**" if k == best else "") for k in FLIGHT_AGGREGATES]
                             + [f"{best}: {fmt(test.get(best), 3)} (mean: {fmt(test.get('mean'), 3)})"])  # fmt: skip
     md += [
-        "### Test cases (flown once, for the shipped estimator and the runs chosen on validation)", "",
+        f"### {regime.capitalize()} test cases (flown once, for the shipped estimator and the runs chosen on validation)", "",
         table(["estimator", "per-window raw (m/s)", "per-window EMA (validated tau)", "per-flight raw (m/s)",
                "flight-mean floor (m/s)", "per-flight - floor", "direction MAE (deg)", "vector skill"], test_rows), "",
     ]  # fmt: skip
     if agg_rows:
         md += [
-            "### Per-flight aggregation: how a flight's estimates become one (validation per-flight RMSE, m/s; "
+            f"### {regime.capitalize()} per-flight aggregation: how a flight's estimates become one (validation per-flight RMSE, m/s; "
             "the rule chosen there, on test)", "",
             table(["estimator", "estimates"] + list(FLIGHT_AGGREGATES) + ["test, chosen rule"], agg_rows), "",
         ]  # fmt: skip
