@@ -16,12 +16,16 @@ thread); each lever changes one thing:
 * ``update 2 threads``: the update on both cores (collection stays single-threaded);
 * ``minibatch 2048``: 8 minibatches per epoch instead of 32 (changes the optimisation, not only
   its cost: phase 2 says whether it learns as fast per frame);
-* ``5 epochs``: half the passes over each batch (likewise).
+* ``5 epochs``: half the passes over each batch (likewise);
+* ``128 envs x 128 steps``, ``256 envs x 64 steps``: the same frames per batch in fewer, wider
+  env steps (each step's fixed cost, the compiled step's launch, the estimator's tick and
+  TorchRL's bookkeeping, is paid half or a quarter as often; the returns are bootstrapped from
+  the value after 128 or 64 steps instead of 256: likewise a change to the optimisation).
 
 Ratio = reference seconds per batch / lever seconds per batch (> 1: faster).
 
-Phase 2, the run. PPO from scratch with ``--estimate-every-s``, ``--update-threads``, ``--minibatch``
-and ``--epochs`` (defaults: the speed levers on, the paper's optimisation), evaluated on the whole
+Phase 2, the run. PPO from scratch with ``--estimate-every-s``, ``--update-threads``, ``--minibatch``,
+``--epochs``, ``--num-envs`` and ``--steps-per-env`` (defaults: the speed levers on, the paper's optimisation), evaluated on the whole
 validation sweep (45 episodes) every ``--eval-every`` frames; it stops at the first evaluation
 that reaches ``--target`` % xy improvement over PD, or at ``--budget-s`` of wall time. One line per
 evaluation: frames, wall time (training only and with evaluations), xy improvement, wins,
@@ -54,6 +58,8 @@ LEVERS = {  # name -> (PPOConfig changes, RLEnvSpec changes)
     "update 2 threads": ({"update_threads": 2}, {}),
     "minibatch 2048": ({"minibatch": 2048}, {}),
     "5 epochs": ({"epochs": 5}, {}),
+    "128 envs x 128 steps": ({"num_envs": 128, "steps_per_env": 128}, {}),
+    "256 envs x 64 steps": ({"num_envs": 256, "steps_per_env": 64}, {}),
 }
 
 
@@ -81,12 +87,12 @@ def lever_batch_seconds(name: str, batches: int, seed: int) -> dict[str, float]:
     return per
 
 
-def measure_levers(batches: int, seed: int) -> dict[str, dict[str, float]]:
+def measure_levers(batches: int, seed: int, names: list[str]) -> dict[str, dict[str, float]]:
     """Each lever setting in a fresh process, as a user's training run is: in one process,
     torch.compile's cache of the simulator step fills up after a few envs and later envs step
     eagerly (measured here: collection 6x slower after the fifth run's evaluation)."""
     out = {}
-    for name in LEVERS:
+    for name in ["reference"] + [n for n in names if n != "reference"]:
         proc = subprocess.run([sys.executable, __file__, "--lever", name, "--lever-batches", str(batches), "--seed", str(seed)],
                               capture_output=True, text=True, check=True)
         per = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -107,7 +113,7 @@ def run_to_target(args: argparse.Namespace) -> list[dict]:
     spec = replace(spec, estimate_every_s=args.estimate_every_s)
     cfg = PPOConfig(seed=args.seed, total_frames=args.max_frames, eval_every_frames=args.eval_every,
                     checkpoint_every_frames=10**12, minibatch=args.minibatch, epochs=args.epochs,
-                    update_threads=args.update_threads)
+                    update_threads=args.update_threads, num_envs=args.num_envs, steps_per_env=args.steps_per_env)
     start = time.perf_counter()
     curve: list[dict] = []
 
@@ -144,6 +150,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--skip-levers", action="store_true")
     parser.add_argument("--lever-batches", type=int, default=3, help="timed batches per lever setting")
+    parser.add_argument("--levers", nargs="+", choices=list(LEVERS), default=list(LEVERS),
+                        help="the lever settings to measure (default: all; the reference always)")
     parser.add_argument("--skip-run", action="store_true")
     parser.add_argument("--lever", choices=list(LEVERS), help=argparse.SUPPRESS)  # one lever, in this process (internal)
     parser.add_argument("--target", type=float, default=40.0, help="xy RMSE improvement over PD on validation, %%")
@@ -154,6 +162,8 @@ def main() -> None:
     parser.add_argument("--update-threads", type=int, default=2)
     parser.add_argument("--minibatch", type=int, default=PPOConfig.minibatch)
     parser.add_argument("--epochs", type=int, default=PPOConfig.epochs)
+    parser.add_argument("--num-envs", type=int, default=PPOConfig.num_envs)
+    parser.add_argument("--steps-per-env", type=int, default=PPOConfig.steps_per_env)
     parser.add_argument("--out", default=None, help="run directory (default: a new temporary folder)")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -162,7 +172,7 @@ def main() -> None:
         return
     print(machine_line(threads=1), flush=True)
     if not args.skip_levers:
-        measure_levers(args.lever_batches, args.seed)
+        measure_levers(args.lever_batches, args.seed, args.levers)
     if not args.skip_run:
         run_to_target(args)
 
