@@ -80,13 +80,13 @@ def test_bad_schema_fails_early():
         FeatureExtractor("horizontal", yaw_mode="sin")
 
 
-@pytest.mark.parametrize("schema", ["horizontal", "vertical"])
-def test_online_equals_offline_bitwise(schema):
+@pytest.mark.parametrize("schema, windows", [("horizontal", None), ("vertical", None), ("vertical", (100, 300))])
+def test_online_equals_offline_bitwise(schema, windows):
     """Per-tick ``step`` calls (same batch, one flight per batch, and a batch whose rows restart
     at different ticks) give exactly the offline ``scan`` features."""
     n, t_len = 4, 650  # longer than the 300-sample trailing window
     rec = random_record(n, t_len, seed=1)
-    fx = make_extractor(schema)
+    fx = make_extractor(schema, windows=windows)
     offline = fx.scan(rec)
 
     # same batch, tick by tick
