@@ -320,6 +320,16 @@ def test_features_and_windows_of_a_generated_dataset(tiny, tmp_path):
     fx = FeatureExtractor.from_config("horizontal")
     cached = compute_features(data["record"], fx, out=tmp_path / "h.memmap", chunk=4)
     assert torch.equal(cached, compute_features(data["record"], fx, out=tmp_path / "h.memmap"))  # reloads
+    with pytest.raises(ValueError, match="holds features of another extractor"):  # other trailing means: other channels
+        compute_features(data["record"], FeatureExtractor.from_config("horizontal", windows=(100,)), out=tmp_path / "h.memmap")
+    # a vertical cache written before that schema had trailing means recorded an unused windows entry: still its cache
+    vfx = FeatureExtractor.from_config("vertical")
+    vertical = compute_features(data["record"], vfx, out=tmp_path / "v.memmap")
+    sidecar = tmp_path / "v.memmap.json"
+    old = json.loads(sidecar.read_text())
+    old["extractor"]["windows"] = [100, 300]
+    sidecar.write_text(json.dumps(old))
+    assert torch.equal(compute_features(data["record"], vfx, out=tmp_path / "v.memmap"), vertical)
     # online, the way a transform sees it: one contiguous tick per call, all flights at once
     state = fx.init_state(data.batch_size[0])
     rec = data["record"]

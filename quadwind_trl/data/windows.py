@@ -199,6 +199,14 @@ class WindowDataset(Dataset):
         return list(zip(x.unbind(0), y.unbind(0)))
 
 
+def _cache_key(about: dict) -> dict:
+    """What decides a feature cache's numbers: its shape, its channels (whose ``avg<w>_`` names
+    carry the trailing windows) and the extractor's other settings. Its ``windows`` entry is left
+    out: vertical caches written before that schema could have trailing means record the
+    horizontal default there, unused."""
+    return {**about, "extractor": {k: v for k, v in about["extractor"].items() if k != "windows"}}
+
+
 def compute_features(
     record: TensorDict,
     extractor: FeatureExtractor,
@@ -217,7 +225,7 @@ def compute_features(
         sidecar = out.parent / (out.name + ".json")
         if out.exists():
             saved = json.loads(sidecar.read_text()) if sidecar.exists() else None
-            if saved != json.loads(json.dumps(about)):
+            if saved is None or _cache_key(saved) != _cache_key(json.loads(json.dumps(about))):
                 raise ValueError(f"{out} holds features of another extractor or dataset ({sidecar}); delete it to recompute")
             return MemoryMappedTensor.from_filename(out, dtype=torch.float32, shape=shape)
         tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
