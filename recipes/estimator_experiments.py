@@ -39,7 +39,7 @@ def regime_section(regime: str, runs: list, evaluations: list, floor_data: Path)
         wind = torch.as_tensor(ed.data["record", "wind"])[..., [1, 0]]  # ENU -> (north, east), as the labels
         val, dt_s = ed.windows.tables["val"], ed.manifest["record_dt_s"]
         floors = {"the flight's start": trailing_mean_floor(wind, ed.windows.labels, val, FLOOR_LENGTHS)}
-        if bool((ed.windows.crop > 0).any()):  # the horizontal pattern begins at the crop, after the climb and its settling
+        if bool((ed.windows.crop > 0).any()):  # windows begin at the crop (the horizontal pattern: after the climb)
             floors["the pattern's start"] = trailing_mean_floor(wind, ed.windows.labels, val, FLOOR_LENGTHS, first=ed.windows.crop)
     return experiments_markdown(reference, runs, evaluations, floors, dt_s)
 

@@ -29,10 +29,10 @@ def flatten(config: dict, prefix: str = "") -> dict:
 
 
 def run_config(manifest: dict) -> dict:
-    """A training manifest's configuration, its trailing means those its features had: the
-    manifest's dataset entry records them where it can (the configuration of a vertical run made
-    before that schema could have trailing means says the horizontal default); manifests older
-    than the setting used the regime's default."""
+    """A training manifest's configuration with ``trailing_windows`` set to the trailing means its
+    features really had. The manifest's dataset entry is the record where present: a vertical
+    run made before that schema could have trailing means has the horizontal default in its
+    configuration. Manifests older than the setting used their regime's default."""
     config = dict(manifest["config"])
     if "trailing_windows" in manifest.get("dataset", {}):
         config["trailing_windows"] = list(manifest["dataset"]["trailing_windows"] or ())
