@@ -17,6 +17,9 @@ thread); each lever changes one thing:
 * ``minibatch 2048``: 8 minibatches per epoch instead of 32 (changes the optimisation, not only
   its cost: phase 2 says whether it learns as fast per frame);
 * ``5 epochs``: half the passes over each batch (likewise);
+* ``2 collection workers``: two single-threaded simulator processes, 32 rows each, with the
+  estimator in them; the policy, the normalisation and the update stay in this process (the rows
+  fly the same episodes: a speed change only);
 * ``128 envs x 128 steps``, ``256 envs x 64 steps``: the same frames per batch in fewer, wider
   env steps (each step's fixed cost, the compiled step's launch, the estimator's tick and
   TorchRL's bookkeeping, is paid half or a quarter as often; the returns are bootstrapped from
@@ -25,7 +28,7 @@ thread); each lever changes one thing:
 Ratio = reference seconds per batch / lever seconds per batch (> 1: faster).
 
 Phase 2, the run. PPO from scratch with ``--estimate-every-s``, ``--update-threads``, ``--minibatch``,
-``--epochs``, ``--num-envs`` and ``--steps-per-env`` (defaults: the speed levers on, the paper's optimisation), evaluated on the whole
+``--epochs``, ``--num-envs``, ``--steps-per-env`` and ``--collect-workers`` (defaults: the speed levers on, the paper's optimisation), evaluated on the whole
 validation sweep (45 episodes) every ``--eval-every`` frames; it stops at the first evaluation
 that reaches ``--target`` % xy improvement over PD, or at ``--budget-s`` of wall time. One line per
 evaluation: frames, wall time (training only and with evaluations), xy improvement, wins,
@@ -60,6 +63,7 @@ LEVERS = {  # name -> (PPOConfig changes, RLEnvSpec changes)
     "5 epochs": ({"epochs": 5}, {}),
     "128 envs x 128 steps": ({"num_envs": 128, "steps_per_env": 128}, {}),
     "256 envs x 64 steps": ({"num_envs": 256, "steps_per_env": 64}, {}),
+    "2 collection workers": ({"collect_workers": 2}, {}),
 }
 
 
@@ -113,7 +117,8 @@ def run_to_target(args: argparse.Namespace) -> list[dict]:
     spec = replace(spec, estimate_every_s=args.estimate_every_s)
     cfg = PPOConfig(seed=args.seed, total_frames=args.max_frames, eval_every_frames=args.eval_every,
                     checkpoint_every_frames=10**12, minibatch=args.minibatch, epochs=args.epochs,
-                    update_threads=args.update_threads, num_envs=args.num_envs, steps_per_env=args.steps_per_env)
+                    update_threads=args.update_threads, num_envs=args.num_envs, steps_per_env=args.steps_per_env,
+                    collect_workers=args.collect_workers)
     start = time.perf_counter()
     curve: list[dict] = []
 
@@ -164,6 +169,7 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=PPOConfig.epochs)
     parser.add_argument("--num-envs", type=int, default=PPOConfig.num_envs)
     parser.add_argument("--steps-per-env", type=int, default=PPOConfig.steps_per_env)
+    parser.add_argument("--collect-workers", type=int, default=PPOConfig.collect_workers)
     parser.add_argument("--out", default=None, help="run directory (default: a new temporary folder)")
     args = parser.parse_args()
     torch.set_num_threads(1)

@@ -192,10 +192,12 @@ def test_trainer_checkpoints_resumes_and_exports(tmp_path):
     assert (scalars / "eval" / "improvement_vs_pd.csv").exists()
     with pytest.raises(FileExistsError):
         PPOTrainer(spec, cfg, out, progress=False).train()
-    # resume to twice the frames: continues from the checkpoint's counters
-    cfg2 = replace(cfg, total_frames=4 * BATCH)
+    # resume to twice the frames, collecting in two worker processes (a speed setting a resume may
+    # change): continues from the checkpoint's counters; batches are [N, T] whatever the layout
+    cfg2 = replace(cfg, total_frames=4 * BATCH, collect_workers=2)
     res2 = PPOTrainer(spec, cfg2, out, progress=False).train(resume=True)
     assert res2.frames == 4 * BATCH and res2.iterations == 4 and len(res2.history) == 2
+    assert all(h["estimator_s"] > 0 and h["episodes_finished"] >= 0 for h in res2.history)
 
     # the exported policy + frozen normalisation fly deterministic evaluations
     actor, payload = load_policy(out / "policy.pt")

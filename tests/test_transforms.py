@@ -332,6 +332,58 @@ def test_vecnorm_pools_rows_and_freezes(bundle):
     assert vecnorm(env2).frozen and torch.allclose(vecnorm(env2).loc["observation"], loc)
 
 
+def test_running_norm_counts_the_restarting_rows_of_a_partial_reset_once():
+    """A partial reset adds the first observations of the rows that restart, and only those, to
+    the statistics (VecNormV2 added every row: those that go on a second time, or as zeros behind
+    a ParallelEnv)."""
+    from quadwind_trl.transforms import RunningObsNorm
+
+    norm = RunningObsNorm(in_keys=["observation"], decay=1.0, reduce_batch_dims=True)
+    first = TensorDict({"observation": torch.tensor([[1.0, 2.0], [3.0, 4.0], [5.0, 6.0]])}, [3])
+    norm._reset(None, first.clone())  # a full reset: every row
+    restart = TensorDict({"_reset": torch.tensor([[False], [True], [False]])}, [3])
+    again = TensorDict({"observation": torch.tensor([[0.0, 0.0], [9.0, 12.0], [0.0, 0.0]])}, [3])
+    out = norm._reset(restart, again)
+    assert int(norm._count["observation"]) == 4
+    torch.testing.assert_close(norm.loc["observation"], torch.tensor([(1 + 3 + 5 + 9) / 4, (2 + 4 + 6 + 12) / 4]))
+    assert out["observation"].shape == (3, 2)  # every row normalised, with the updated statistics
+    norm._reset(TensorDict({"_reset": torch.zeros(3, 1, dtype=torch.bool)}, [3]), again.clone())
+    assert int(norm._count["observation"]) == 4
+
+
+def test_collection_workers_fly_the_rows_of_one_env(bundle):
+    """build_env(workers=2): two processes of 2 rows each with the row-wise transforms, the
+    normalisation here, fly the episodes of the one-process env: the same physics, rewards and
+    ends (first-episode truncations, a curriculum switch) bit for bit; observations to float
+    rounding (the estimator's matrix products depend on the batch size in their last bits)."""
+    from quadwind_trl.rl.envs import RLEnvSpec, build_env, estimator_seconds, set_trajectories
+
+    spec = RLEnvSpec("horizontal", num_envs=4, config=short_config(), compile_step=False, desync_steps=30, seed=3)
+    flown = []
+    for workers in (1, 2):
+        env = build_env(spec, bundle, workers=workers)
+        try:
+            td, record = env.reset(), []
+            for k in range(50):
+                if k == 35:
+                    set_trajectories(env, ("racetrack_h",), truncate=True)
+                td["action"] = torch.full((*env.batch_size, 4), 0.05 * (k % 3 - 1))
+                step, td = env.step_and_maybe_reset(td)
+                record.append(step["next"].select("observation", "reward", "done", "truncated", "episode_reward", "step_count",
+                                                  ("truth", "pos")).reshape(4).clone())
+            assert estimator_seconds(env) > 0
+            flown.append(torch.stack(record, 1))
+        finally:
+            env.close()
+    one, two = flown
+    assert int(one["truncated"][:, :35].sum()) >= 3 and bool(one["truncated"][:, 35].all())  # desync, then the switch
+    for key in ("reward", "done", "truncated", "episode_reward", "step_count", ("truth", "pos")):
+        assert torch.equal(one[key], two[key]), key
+    torch.testing.assert_close(one["observation"], two["observation"], rtol=0, atol=1e-5)
+    with pytest.raises(ValueError, match=r"workers=3; allowed: >= 1 and dividing RLEnvSpec.num_envs=4"):
+        build_env(spec, bundle, workers=3)
+
+
 def test_episode_control_desyncs_first_episodes():
     cfg = short_config()
     env = TransformedEnv(QuadWindEnv(cfg, batch_size=[6], scenario_sampler=ScenarioSampler(start="pattern")),

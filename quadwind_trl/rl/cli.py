@@ -55,6 +55,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--out", default=None, help=f"run directory (default runs/ppo_{regime}[_quick])")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its latest checkpoint")
     p.add_argument("--threads", type=int, default=1, help="torch intra-op threads (default 1)")
+    p.add_argument("--collect-workers", type=int, default=None,
+                   help="collection processes, one single-threaded simulator per core, each stepping num_envs / W rows "
+                        "(default 1; the rows fly the same episodes whatever W: a speed setting, which --resume may change)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", help="torch device of the simulator, estimator and networks (cpu, cuda, ...)")
     p.add_argument("--ema-tau-s", type=float, default=None,
@@ -139,10 +142,13 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     overrides = {"seed": args.seed, "threads": args.threads}
     for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
                       ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
-                      ("reward_scaling", "reward_scaling")):
+                      ("reward_scaling", "reward_scaling"), ("collect_workers", "collect_workers")):
         if getattr(args, arg) is not None:
             overrides[name] = getattr(args, arg)
-    cfg = replace(cfg, **overrides).validate()
+    try:
+        cfg = replace(cfg, **overrides).validate()
+    except ValueError as err:  # e.g. --collect-workers 3 with 64 envs: the message names the field and the rule
+        raise SystemExit(f"error: {err}") from None
     spec = replace(spec, num_envs=cfg.num_envs)
 
     # fail early on a missing estimator, with the message naming the options

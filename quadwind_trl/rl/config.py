@@ -76,6 +76,9 @@ class PPOConfig:
     # threads of the PPO update alone (None: ``threads``): collection and update alternate in one
     # process, so a core that the single-threaded simulator leaves idle can serve the update
     update_threads: int | None = None
+    # collection processes (rl.envs.build_env(workers=)): one single-threaded simulator process per
+    # core, each stepping num_envs / collect_workers rows; the rows fly the same episodes as with 1
+    collect_workers: int = 1
 
     @property
     def frames_per_batch(self) -> int:
@@ -97,10 +100,12 @@ class PPOConfig:
         return self.lr
 
     def validate(self) -> "PPOConfig":
-        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames") + tuple(
+        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames", "collect_workers") + tuple(
                 name for name in ("threads", "update_threads") if getattr(self, name) is not None):
             if getattr(self, name) < 1:
                 raise ValueError(f"PPOConfig.{name}={getattr(self, name)} must be >= 1")
+        if self.num_envs % self.collect_workers:
+            raise ValueError(f"PPOConfig.collect_workers={self.collect_workers} must divide num_envs={self.num_envs}")
         if self.frames_per_batch % self.minibatch:
             raise ValueError(
                 f"PPOConfig: num_envs * steps_per_env = {self.frames_per_batch} must be a multiple of minibatch={self.minibatch}"

@@ -37,11 +37,14 @@ from __future__ import annotations
 import math
 
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Literal, Mapping, TypeVar
 
-from torchrl.envs import ClipTransform, Compose, RewardSum, StepCounter, TransformedEnv, VecNormV2
+import torch
+from torchrl.envs import ClipTransform, Compose, ParallelEnv, RewardSum, StepCounter, Transform, TransformedEnv, VecNormV2
 
 from ..config import EnvConfig
+from ..envs.parallel import QuietParallelEnv
 from ..envs.quad_env import QuadWindEnv, ScenarioSampler
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
@@ -144,12 +147,64 @@ class RLEnvSpec:
         return self.config if self.config is not None else regime_config(self.regime)
 
 
+def _row_transforms(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slice | None = None) -> list[Transform]:
+    """The transforms that work row by row (episode control, wind estimate, observation): they
+    may run in a collection worker that holds ``rows`` of the batch (None: all of them)."""
+    cfg = spec.env_config
+    source = "truth" if spec.wind_input == "truth" else "estimate"
+    return [
+        EpisodeControl(spec.desync_steps, seed=spec.seed, align=cfg.timing.decisions_per_log, rows=rows),
+        WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg,
+                     every_s=spec.estimate_every_s),
+        PolicyObservation(cfg),
+    ]
+
+
+def _batch_transforms(spec: RLEnvSpec) -> list[Transform]:
+    """The transforms that pool the whole batch (the running normalisation) or come after it: they
+    stay in the process that runs the policy."""
+    transforms = [RunningObsNorm(in_keys=[OBSERVATION_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True)]
+    if spec.obs_clip is not None:
+        transforms.append(ClipTransform(in_keys=[OBSERVATION_KEY], low=-spec.obs_clip, high=spec.obs_clip))
+    if spec.zeroed_channels:  # one transform, last: every other input stays bit-identical
+        transforms.append(ZeroInputs(spec.zeroed_channels))
+    return transforms + [RewardSum(in_keys=["reward"], out_keys=["episode_reward"], reset_keys=["_reset"]), StepCounter()]
+
+
+def _base_env(spec: RLEnvSpec, rows: slice | None = None) -> QuadWindEnv:
+    sampler = ScenarioSampler(
+        ranges=spec.ranges if spec.ranges is not None else DEFAULT_RANGES[spec.regime],
+        trajectories=tuple(spec.trajectories) if spec.trajectories is not None else DEFAULT_TRAJECTORIES[spec.regime],
+        start=spec.start,
+    )
+    rows = rows or slice(0, spec.num_envs)
+    return QuadWindEnv(spec.env_config, batch_size=[rows.stop - rows.start], device=spec.device, scenario_sampler=sampler,
+                       seed=spec.seed, compile_step=spec.compile_step, first_row=rows.start)
+
+
+class RowWorkerEnv(TransformedEnv):
+    """One collection worker's rows with the row-wise transforms; the parent reaches its methods
+    through ``ParallelEnv`` (``env.base_env.set_trajectories(...)`` runs in every worker)."""
+
+    def set_trajectories(self, trajectories: tuple[str, ...], truncate: bool) -> None:
+        set_trajectories(self, trajectories, truncate)
+
+    def estimator_seconds(self) -> float:
+        return wind_estimate(self).estimator_seconds
+
+
+def _row_worker(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slice, threads: int) -> RowWorkerEnv:
+    torch.set_num_threads(threads)
+    return RowWorkerEnv(_base_env(spec, rows), Compose(*_row_transforms(spec, estimator, rows)))
+
+
 def build_env(
     spec: RLEnvSpec,
     estimator: WindEstimator | None,
     *,
     vecnorm_state: dict | None = None,
     freeze_norm: bool | None = None,
+    workers: int = 1,
 ) -> TransformedEnv:
     """The transformed env of ``spec`` (see the module docstring for the stack).
 
@@ -158,33 +213,25 @@ def build_env(
         estimator: the frozen wind estimator (may be None for ``wind_input="truth"``).
         vecnorm_state: a saved ``VecNormV2`` state dict (``vecnorm_state_dict(env)``) to load.
         freeze_norm: freeze the normalisation statistics (default: frozen iff ``vecnorm_state``).
+        workers: collection processes (one per core). With more than one, each single-threaded
+            worker holds ``num_envs / workers`` rows with the row-wise transforms (simulator,
+            episode control, wind estimate, observation) and this process keeps the rest (the
+            normalisation pools every row); the batch is ``[workers, num_envs / workers]`` and
+            its rows fly exactly the episodes of the one-process env.
     """
     if spec.wind_input != "truth" and estimator is None:
         raise ValueError(f"wind_input={spec.wind_input!r} needs an estimator")
     if estimator is not None and estimator.schema != spec.regime:
         raise ValueError(f"the estimator was trained on the {estimator.schema!r} schema, not {spec.regime!r}")
-    cfg = spec.env_config
-    sampler = ScenarioSampler(
-        ranges=spec.ranges if spec.ranges is not None else DEFAULT_RANGES[spec.regime],
-        trajectories=tuple(spec.trajectories) if spec.trajectories is not None else DEFAULT_TRAJECTORIES[spec.regime],
-        start=spec.start,
-    )
-    base = QuadWindEnv(cfg, batch_size=[spec.num_envs], device=spec.device, scenario_sampler=sampler, seed=spec.seed,
-                       compile_step=spec.compile_step)
-    source = "truth" if spec.wind_input == "truth" else "estimate"
-    transforms = [
-        EpisodeControl(spec.desync_steps, seed=spec.seed, align=cfg.timing.decisions_per_log),
-        WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg,
-                     every_s=spec.estimate_every_s),
-        PolicyObservation(cfg),
-        RunningObsNorm(in_keys=[OBSERVATION_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True),
-    ]
-    if spec.obs_clip is not None:
-        transforms.append(ClipTransform(in_keys=[OBSERVATION_KEY], low=-spec.obs_clip, high=spec.obs_clip))
-    if spec.zeroed_channels:  # one transform, last: every other input stays bit-identical
-        transforms.append(ZeroInputs(spec.zeroed_channels))
-    transforms += [RewardSum(in_keys=["reward"], out_keys=["episode_reward"], reset_keys=["_reset"]), StepCounter()]
-    env = TransformedEnv(base, Compose(*transforms))
+    if workers < 1 or spec.num_envs % workers:
+        raise ValueError(f"workers={workers}; allowed: >= 1 and dividing RLEnvSpec.num_envs={spec.num_envs}")
+    if workers == 1:
+        env = TransformedEnv(_base_env(spec), Compose(*_row_transforms(spec, estimator), *_batch_transforms(spec)))
+    else:
+        n = spec.num_envs // workers
+        # the estimator travels to the workers pickled, so every worker flies this very network
+        makers = [partial(_row_worker, spec, estimator, slice(i * n, (i + 1) * n), 1) for i in range(workers)]
+        env = TransformedEnv(QuietParallelEnv(workers, makers), Compose(*_batch_transforms(spec)))
     if vecnorm_state is not None:
         load_vecnorm_state(env, vecnorm_state)
     if freeze_norm or (freeze_norm is None and vecnorm_state is not None):
@@ -245,6 +292,34 @@ def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> d
         "estimate_every_s": float(env_spec.get("estimate_every_s", DEFAULT_ESTIMATE_EVERY_S)),
         "zero_inputs": tuple(env_spec.get("zero_inputs", ())),
     }
+
+
+def _workers(env: TransformedEnv) -> ParallelEnv | None:
+    base = env.base_env
+    return base if isinstance(base, ParallelEnv) else None
+
+
+def set_trajectories(env: TransformedEnv, trajectories: tuple[str, ...], truncate: bool) -> None:
+    """Sample the training episodes that start from now on among ``trajectories`` (a curriculum
+    stage); with ``truncate``, end every running episode at the next step so the set takes effect
+    at once. Works on a one-process env and on one with collection workers (in each of them)."""
+    workers = _workers(env)
+    if workers is not None:
+        workers.set_trajectories(tuple(trajectories), truncate)
+        return
+    base = env.base_env
+    base.scenario_sampler = replace(base.scenario_sampler, trajectories=tuple(trajectories))
+    if truncate:
+        episode_control(env).request_truncation()
+
+
+def estimator_seconds(env: TransformedEnv) -> float:
+    """Seconds the env's wind estimator has run so far (summed over collection workers; they run
+    at the same time); raises ``KeyError`` when the env has no ``WindEstimate``."""
+    workers = _workers(env)
+    if workers is not None:
+        return float(sum(workers.estimator_seconds()))
+    return wind_estimate(env).estimator_seconds
 
 
 def find_transform(env: TransformedEnv, cls: type[T]) -> T:
@@ -319,4 +394,7 @@ __all__ = [
     "load_vecnorm_state",
     "episode_control",
     "wind_estimate",
+    "set_trajectories",
+    "estimator_seconds",
+    "RowWorkerEnv",
 ]

@@ -26,16 +26,17 @@ from ..manifest import command_line, git_commit, platform_info, repo_relative, s
 from ..outputs import OutputLock, truncate_scalar_logs
 from ..keys import OBSERVATION_CHANNELS
 from .config import Curriculum, PPOConfig
-from .envs import (EnvFactory, RLEnvSpec, episode_control, load_vecnorm_state, policy_env_settings, vecnorm_state_dict,
-                   wind_estimate)
+from .envs import (EnvFactory, RLEnvSpec, estimator_seconds, load_vecnorm_state, policy_env_settings, set_trajectories,
+                   vecnorm_state_dict)
 from .paired import VALIDATION_TAIL_FRACTION, fly_paired, paired_metrics
 from .policy import action_scale, build_actor_critic, policy_payload, spec_to_dict
 from .update import PPOUpdate
 
 
 # PPOConfig fields a resumed run may change: how long it runs, how often it evaluates and
-# checkpoints, and its threads; any other change would make it another recipe
-RESUMABLE_CHANGES = ("total_frames", "eval_every_frames", "checkpoint_every_frames", "threads", "update_threads")
+# checkpoints, and its threads and processes; any other change would make it another recipe
+RESUMABLE_CHANGES = ("total_frames", "eval_every_frames", "checkpoint_every_frames", "threads", "update_threads",
+                     "collect_workers")
 # what runs saved before a PPOConfig field existed used (their checkpoints lack it)
 SAVED_BEFORE_FIELD = {"lr_schedule": "constant", "reward_scaling": "none"}
 
@@ -213,8 +214,9 @@ class PPOTrainer:
         from tqdm.auto import tqdm
 
         cfg = self.cfg
-        collector = Collector(s.env, s.learner.actor, frames_per_batch=cfg.frames_per_batch,
-                              total_frames=cfg.planned_frames - s.progress.frames,
+        # endless (-1): the loop below ends the run. A collector that counts the frames itself closes
+        # a multi-process env before it hands over the last batch, whose logging still asks the workers
+        collector = Collector(s.env, s.learner.actor, frames_per_batch=cfg.frames_per_batch, total_frames=-1,
                               exploration_type=ExplorationType.RANDOM, auto_register_policy_transforms=False)
         bar = tqdm(total=cfg.planned_frames, initial=s.progress.frames, unit="frame", unit_scale=True,
                    disable=not self.progress, desc="ppo")
@@ -233,7 +235,7 @@ class PPOTrainer:
                     stop = self.stop_when is not None and self.stop_when(s.progress.evals)
                 if stop or self._checkpoint_due(s):
                     self._checkpoint(s)
-                if stop:
+                if stop or self._finished(s.progress):
                     break
                 t_collect0 = time.perf_counter()
         finally:
@@ -275,7 +277,7 @@ class PPOTrainer:
                                                       "command": self.command})
         # the training env: a fresh seed per (resumed) segment so episodes do not repeat
         env = self.factory(seed=spec.seed + 7919 * progress.iteration,
-                           desync_steps=episode_steps_hint(spec) if cfg.desync else 0)
+                           desync_steps=episode_steps_hint(spec) if cfg.desync else 0, workers=cfg.collect_workers)
         network = getattr(self.factory.bundle, "model", None)  # a WindEstimator need not be a network
         if network is not None:
             learner.check_frozen(network)
@@ -293,6 +295,7 @@ class PPOTrainer:
     def _iteration(self, s: _Session, data: TensorDictBase, gen: torch.Generator, collect_s: float) -> dict:
         """Update on one collected batch; advance the counters and the curriculum; log."""
         t0 = time.perf_counter()
+        data = data.reshape(-1, data.shape[-1])  # [workers, rows, T] with collection workers: [N, T]
         stats = self._episode_stats(data)
         threads = torch.get_num_threads()
         torch.set_num_threads(self.cfg.update_threads or threads)
@@ -315,7 +318,7 @@ class PPOTrainer:
                 p.stage = new_stage
                 self._apply_stage(s.env, new_stage, truncate=True)
         try:
-            metrics["estimator_s"] = wind_estimate(s.env).estimator_seconds
+            metrics["estimator_s"] = estimator_seconds(s.env)
         except KeyError:  # wind_input="truth" without an estimator
             pass
         metrics["wall_s"] = s.tick()
@@ -324,10 +327,7 @@ class PPOTrainer:
         return metrics
 
     def _apply_stage(self, env: TransformedEnv, stage: int, truncate: bool) -> None:
-        base = env.base_env
-        base.scenario_sampler = replace(base.scenario_sampler, trajectories=tuple(self.curriculum.stages[stage]))
-        if truncate:
-            episode_control(env).request_truncation()
+        set_trajectories(env, self.curriculum.stages[stage], truncate)
 
     @staticmethod
     def _episode_stats(data: TensorDictBase) -> dict[str, float]:

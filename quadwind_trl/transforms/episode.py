@@ -27,7 +27,7 @@ from .reset import reset_mask
 
 
 class EpisodeControl(Transform):
-    def __init__(self, desync_steps: int = 0, seed: int = 0, align: int = 10):
+    def __init__(self, desync_steps: int = 0, seed: int = 0, align: int = 10, rows: slice | None = None):
         if desync_steps < 0:
             raise ValueError(f"EpisodeControl.desync_steps={desync_steps} must be >= 0")
         if align < 1:
@@ -36,6 +36,9 @@ class EpisodeControl(Transform):
         self.desync_steps = int(desync_steps)
         self.align = int(align)
         self.seed = int(seed)
+        # this env's rows of a larger batch (a collection worker's share; None: the whole batch):
+        # its first-episode lengths are those rows of the whole batch's draw
+        self.rows = rows
         self.limit: torch.Tensor | None = None  # [N] first-episode length, 0 = none
         self.count: torch.Tensor | None = None  # [N] env steps into the current episode
         self.first: torch.Tensor | None = None  # [N] bool: still in the first episode
@@ -54,7 +57,11 @@ class EpisodeControl(Transform):
             gen = torch.Generator().manual_seed(self.seed)
             if self.desync_steps > 0:
                 top = max(1, self.desync_steps // self.align)
-                self.limit = (self.align * torch.randint(1, top + 1, (n,), generator=gen)).to(dev)
+                first = 0 if self.rows is None else self.rows.start
+                if self.rows is not None and self.rows.stop - first != n:
+                    raise ValueError(f"EpisodeControl.rows={self.rows} holds {self.rows.stop - first} rows but the env has {n}")
+                draw = torch.randint(1, top + 1, (first + n,), generator=gen)[first:]  # the CPU draw is serial: a prefix is a shorter draw
+                self.limit = (self.align * draw).to(dev)
             else:
                 self.limit = torch.zeros(n, dtype=torch.int64, device=dev)
             self.count = torch.zeros(n, dtype=torch.int64, device=dev)
