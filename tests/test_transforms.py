@@ -353,9 +353,10 @@ def test_running_norm_counts_the_restarting_rows_of_a_partial_reset_once():
 
 def test_collection_workers_fly_the_rows_of_one_env(bundle):
     """build_env(workers=2): two processes of 2 rows each with the row-wise transforms, the
-    normalisation here, fly the episodes of the one-process env: the same physics, rewards and
-    ends (first-episode truncations, a curriculum switch) bit for bit; observations to float
-    rounding (the estimator's matrix products depend on the batch size in their last bits)."""
+    normalisation here, fly the episodes of the one-process env: the same rewards (the tracking
+    error of each row's physics) and ends (first-episode truncations, a curriculum switch) bit for
+    bit; observations to float rounding (the estimator's matrix products depend on the batch size
+    in their last bits). The workers return only what the policy and the trainer read."""
     from quadwind_trl.rl.envs import RLEnvSpec, build_env, estimator_seconds, set_trajectories
 
     spec = RLEnvSpec("horizontal", num_envs=4, config=short_config(), compile_step=False, desync_steps=30, seed=3)
@@ -369,15 +370,15 @@ def test_collection_workers_fly_the_rows_of_one_env(bundle):
                     set_trajectories(env, ("racetrack_h",), truncate=True)
                 td["action"] = torch.full((*env.batch_size, 4), 0.05 * (k % 3 - 1))
                 step, td = env.step_and_maybe_reset(td)
-                record.append(step["next"].select("observation", "reward", "done", "truncated", "episode_reward", "step_count",
-                                                  ("truth", "pos")).reshape(4).clone())
+                record.append(step["next"].select("observation", "reward", "done", "truncated", "episode_reward",
+                                                  "step_count").reshape(4).clone())
             assert estimator_seconds(env) > 0
             flown.append(torch.stack(record, 1))
         finally:
             env.close()
     one, two = flown
     assert int(one["truncated"][:, :35].sum()) >= 3 and bool(one["truncated"][:, 35].all())  # desync, then the switch
-    for key in ("reward", "done", "truncated", "episode_reward", "step_count", ("truth", "pos")):
+    for key in ("reward", "done", "truncated", "episode_reward", "step_count"):
         assert torch.equal(one[key], two[key]), key
     torch.testing.assert_close(one["observation"], two["observation"], rtol=0, atol=1e-5)
     with pytest.raises(ValueError, match=r"workers=3; allowed: >= 1 and dividing RLEnvSpec.num_envs=4"):

@@ -41,7 +41,8 @@ from functools import partial
 from typing import Literal, Mapping, TypeVar
 
 import torch
-from torchrl.envs import ClipTransform, Compose, ParallelEnv, RewardSum, StepCounter, Transform, TransformedEnv, VecNormV2
+from torchrl.envs import (ClipTransform, Compose, ParallelEnv, RemoveEmptySpecs, RewardSum, SelectTransform, StepCounter, Transform, TransformedEnv,
+                          VecNormV2)
 
 from ..config import EnvConfig
 from ..envs.parallel import QuietParallelEnv
@@ -195,7 +196,11 @@ class RowWorkerEnv(TransformedEnv):
 
 def _row_worker(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slice, threads: int) -> RowWorkerEnv:
     torch.set_num_threads(threads)
-    return RowWorkerEnv(_base_env(spec, rows), Compose(*_row_transforms(spec, estimator, rows)))
+    # the parent gets what the policy and the trainer read (the observation, reward and ends): every
+    # entry a worker returns is copied through shared memory at every step, and the full record
+    # (sensors, truth, navigation, ...) made the copies cost more than the second core saved
+    keep = SelectTransform(OBSERVATION_KEY, keep_rewards=True, keep_dones=True)
+    return RowWorkerEnv(_base_env(spec, rows), Compose(*_row_transforms(spec, estimator, rows), keep, RemoveEmptySpecs()))
 
 
 def build_env(
@@ -217,7 +222,8 @@ def build_env(
             worker holds ``num_envs / workers`` rows with the row-wise transforms (simulator,
             episode control, wind estimate, observation) and this process keeps the rest (the
             normalisation pools every row); the batch is ``[workers, num_envs / workers]`` and
-            its rows fly exactly the episodes of the one-process env.
+            its rows fly exactly the episodes of the one-process env. The workers return what the
+            policy and the trainer read: the observation, the reward and the done flags.
     """
     if spec.wind_input != "truth" and estimator is None:
         raise ValueError(f"wind_input={spec.wind_input!r} needs an estimator")
