@@ -67,7 +67,32 @@ def platform_info() -> dict:
         "torch": torch.__version__,
         "kernel_env": {k: os.environ[k] for k in KERNEL_ENV if k in os.environ},
         "torch_threads": torch.get_num_threads(),
+        "vector_isa": _vector_isa(),
     }
+
+
+def _vector_isa() -> str | None:
+    """The widest vector instruction set the processor itself has ("AVX512", "AVX2" or "DEFAULT"),
+    whatever ``ATEN_CPU_CAPABILITY`` lowers ATen to; None where /proc/cpuinfo is not readable."""
+    try:
+        flags = set(next(line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")).split())
+    except (OSError, StopIteration):
+        return None
+    return "AVX512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "DEFAULT"
+
+
+def same_vector_isa(a: dict | None, b: dict | None) -> bool:
+    """Whether two :func:`platform_info` records come from processors with the same vector
+    instruction set. Records made before ``vector_isa`` was recorded are read from the ATen
+    capability they ran, where no environment variable had lowered it."""
+    def isa(p: dict | None) -> str | None:
+        if p is None:
+            return None
+        if p.get("vector_isa") is not None:
+            return p["vector_isa"]
+        return None if "ATEN_CPU_CAPABILITY" in (p.get("kernel_env") or {}) else p.get("aten_cpu_capability")
+
+    return isa(a) is not None and isa(a) == isa(b)
 
 
 def same_platform(a: dict | None, b: dict | None) -> bool:

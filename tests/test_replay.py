@@ -76,3 +76,24 @@ def test_another_kernel_path_stays_within_the_cross_platform_tolerance(tmp_path,
     rtol = CROSS_PLATFORM_RTOL[("horizontal", True)]
     holds, verdict = replay_verdict(agreement, other["platform"], rtol)
     assert holds, f"{verdict} (tolerance {rtol:.0e}; docs/simulator.md, 'Exact replay')"
+
+
+def test_the_tolerance_holds_between_processors_of_one_vector_instruction_set():
+    """CROSS_PLATFORM_RTOL is a claim about processors with the same vector instruction set; a
+    record from another (an AVX-512 record on an AVX2-only processor moved by 1.1e-3) is checked
+    statistically, and an ATen kernel path lowered by ATEN_CPU_CAPABILITY stays the processor's."""
+    from quadwind_trl.evaluation.replay import Agreement
+
+    here = platform_info()
+    recorded = [1.0 + 0.1 * k for k in range(8)]
+    moved = Agreement.of(recorded, [v * (1 + (5e-4 if k % 2 else -5e-4)) for k, v in enumerate(recorded)])
+    rtol = CROSS_PLATFORM_RTOL[("horizontal", True)]
+    same_isa = {**here, "torch": "0.0-another-build"}  # another platform, this processor's instruction set
+    other_isa = {**same_isa, "vector_isa": "AVX512" if here["vector_isa"] != "AVX512" else "AVX2"}
+    lowered = {**same_isa, "vector_isa": None, "aten_cpu_capability": "DEFAULT", "kernel_env": {"ATEN_CPU_CAPABILITY": "default"}}
+    assert not replay_verdict(moved, same_isa, rtol)[0]
+    holds, verdict = replay_verdict(moved, other_isa, rtol)
+    assert holds and "another vector instruction set, statistical agreement holds" in verdict
+    if here["vector_isa"] is not None:  # /proc/cpuinfo readable: the lowered path counts as this processor only when recorded
+        assert replay_verdict(moved, {**lowered, "vector_isa": here["vector_isa"]}, rtol)[0] is False
+    assert "statistical" in replay_verdict(moved, lowered, rtol)[1]  # unknown instruction set: never the tolerance
