@@ -198,7 +198,7 @@ def _row_worker(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slice, t
     torch.set_num_threads(threads)
     # the parent gets what the policy and the trainer read (the observation, reward and ends): every
     # entry a worker returns is copied through shared memory at every step, and the full record
-    # (sensors, truth, navigation, ...) made the copies cost more than the second core saved
+    # (sensors, truth, navigation, ...) cost the parent 6-9 ms a step (docs/benchmarks.md)
     keep = SelectTransform(OBSERVATION_KEY, keep_rewards=True, keep_dones=True)
     return RowWorkerEnv(_base_env(spec, rows), Compose(*_row_transforms(spec, estimator, rows), keep, RemoveEmptySpecs()))
 
