@@ -71,6 +71,7 @@ def platform_info() -> dict:
     }
 
 
+@cache  # the processor does not change within a process: /proc/cpuinfo is read once
 def _vector_isa() -> str | None:
     """The widest vector instruction set the processor itself has ("AVX512", "AVX2" or "DEFAULT"),
     whatever ``ATEN_CPU_CAPABILITY`` lowers ATen to; None where /proc/cpuinfo is not readable."""
