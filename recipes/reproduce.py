@@ -5,10 +5,14 @@
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
     python recipes/reproduce.py --full --only ppo-horizontal-seed1 ppo-vertical-seed1
 
-Each stage is one of the recipes in this folder, run as its own process; a stage whose output
-already exists is skipped (``--force STAGE`` reruns it), and the long stages resume from their
-last checkpoint when interrupted, so a full reproduction can span several sessions. Each finished
-stage's wall time, commit and machine load are added to ``pipeline_times.json`` (``results/``).
+Each stage is one of the recipes in this folder, run as its own single-threaded process; up to
+``--jobs`` (default 2) run at once, each as soon as the stages whose outputs it reads have finished
+(the horizontal and the vertical chains side by side; each line of output is prefixed with its
+stage's name). A stage whose output already exists is skipped (``--force STAGE`` reruns it), and
+the long stages resume from their last checkpoint when interrupted, so a full reproduction can
+span several sessions. Each finished stage's wall time, commit and machine load are added to
+``pipeline_times.json`` (``results/``); with two stages at once each one's wall time is that of a
+shared machine (its load is recorded beside it).
 ``--quick`` writes everything under ``runs/quick/`` (or ``--out DIR``) and never touches the shipped checkpoints,
 ``results/`` or ``docs/``; ``--full`` writes the shipped artifacts.
 
@@ -28,6 +32,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from functools import partial
@@ -47,6 +52,9 @@ class Stage:
     args: tuple[str, ...]  # a recipe and its arguments; () for a stage that is only ``after``
     output: Path  # the stage is done when this exists
     after: Callable[[], None] | None = None  # run in this process once the recipe has finished
+    # the stages whose outputs this one reads; None: every stage listed before it. Every recipe
+    # runs single-threaded, so two stages with nothing between them can share two cores (--jobs)
+    needs: tuple[str, ...] | None = None
 
 
 def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage]:
@@ -57,20 +65,19 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
         pol = {r: q / f"ppo_{r}" for r in ("horizontal", "vertical")}
         out = [
             *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--quick", "--cases", "4", "--out", str(data[r]),
-                                          "--threads", "1", "--no-progress"), data[r])
+                                          "--threads", "1", "--no-progress"), data[r], needs=())
               for r in data),
             *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--quick", "--out", str(est[r]),
-                                       "--log-dir", str(q / "runs"), "--threads", "1", "--no-progress"), est[r]) for r in data),
-            Stage("ppo-horizontal", ("ppo_horizontal.py", "--quick", "--estimator", str(est["horizontal"]), "--out", str(pol["horizontal"]),
-                                     "--no-progress"), pol["horizontal"] / "policy.pt"),
-            Stage("ppo-vertical", ("ppo_vertical_curriculum.py", "--quick", "--estimator", str(est["vertical"]), "--out",
-                                   str(pol["vertical"]), "--no-progress"), pol["vertical"] / "policy.pt"),
+                                       "--log-dir", str(q / "runs"), "--threads", "1", "--no-progress"), est[r],
+                    needs=(f"data-{r}",)) for r in data),
+            *(Stage(f"ppo-{r}", (PPO_RECIPES[r], "--quick", "--estimator", str(est[r]), "--out", str(pol[r]), "--no-progress"),
+                    pol[r] / "policy.pt", needs=(f"estimator-{r}",)) for r in data),
             # no separate PD-baseline stage (the ablation flies PD on the same episodes), no oracle
             # controller and no out-of-distribution sweep: a toy run shows the pipeline, not results
-            Stage("ablation", ("ablation.py", "--quick", "--sweeps", "horizontal", "vertical", "--controllers", "pd", "blind",
-                               "aware", "--policy", str(pol["horizontal"] / "policy.pt"), str(pol["vertical"] / "policy.pt"),
-                               "--estimator", str(est["horizontal"]), str(est["vertical"]), "--results", str(q / "results"),
-                               "--figures", str(q / "figures")), q / "results" / "ablation_vertical.json"),
+            *(Stage(f"ablation-{r}", ("ablation.py", "--quick", "--sweeps", r, "--controllers", "pd", "blind", "aware",
+                                      "--policy", str(pol[r] / "policy.pt"), "--estimator", str(est[r]), "--results",
+                                      str(q / "results"), "--figures", str(q / "figures")),
+                    q / "results" / f"ablation_{r}.json", needs=(f"ppo-{r}",)) for r in data),
             Stage("report", ("report.py", "--toy", "--results", str(q / "results"), "--sections", str(q / "sections"),
                              "--out", str(q / "results.md"), "--runs", str(q)),
                   q / "results.md"),
@@ -80,34 +87,37 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
     unseen = {r: ROOT / "data" / f"flights_{r}_unseen" for r in data}
     unseen_seed = {"horizontal": "1002", "vertical": "2002"}
     plan = [
-        *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--compile", "--threads", "1", "--resume"), data[r]) for r in data),
+        *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--compile", "--threads", "1", "--resume"), data[r], needs=())
+          for r in data),
         *(Stage(f"data-{r}-unseen", ("generate_flights.py", "--regime", r, "--cases", "150", "--seed", unseen_seed[r],
-                                     "--out", str(unseen[r]), "--compile", "--threads", "1", "--resume"), unseen[r]) for r in data),
+                                     "--out", str(unseen[r]), "--compile", "--threads", "1", "--resume"), unseen[r], needs=())
+          for r in data),
         *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--threads", "1", "--resume",
-                                   "--no-progress"), CHECKPOINTS / f"estimator_{r}.pt") for r in data),
+                                   "--no-progress"), CHECKPOINTS / f"estimator_{r}.pt", needs=(f"data-{r}",)) for r in data),
         # --update-checkpoint records the validation-best EMA tau, which the policies then train with
         *(Stage(f"estimator-{r}-evaluation", ("evaluate_estimator.py", "--regime", r, "--data", str(data[r]), "--unseen-data",
                                               str(unseen[r]), "--threads", "1", "--update-checkpoint"),
-                ROOT / "results" / f"estimation_{r}.json") for r in data),
+                ROOT / "results" / f"estimation_{r}.json", needs=(f"estimator-{r}", f"data-{r}-unseen")) for r in data),
     ]
     trained = [(r, kind, seed) for kind in POLICY_KINDS for seed in SEEDS for r in REGIMES]
     trained += [("horizontal", ORACLE_KIND, seed) for seed in ORACLE_SEEDS]
     for r, kind, seed in trained:
-        recipe = "ppo_horizontal.py" if r == "horizontal" else "ppo_vertical_curriculum.py"
         run = policy_run(r, kind, seed)
-        plan.append(Stage(run.name.replace("_", "-"), (recipe, "--out", str(run), "--seed", str(seed), *TRAINING_OPTIONS[kind],
-                                                      "--resume", "--no-progress"), kept_policy(r, kind, seed),
-                          after=partial(keep_policy, r, kind, seed)))
+        plan.append(Stage(_stage_name(run), (PPO_RECIPES[r], "--out", str(run), "--seed", str(seed), *TRAINING_OPTIONS[kind],
+                                             "--resume", "--no-progress"), kept_policy(r, kind, seed),
+                          after=partial(keep_policy, r, kind, seed), needs=(f"estimator-{r}-evaluation",)))
     for seed in SEEDS:
         # each seed's wind-aware and trained-blind (and oracle-trained) policies on all three
         # sweeps, every controller; per regime, so a seed's horizontal flights need no vertical policy
         out = SEED_RESULTS / f"seed{seed}"
         for r, sweeps in (("horizontal", ("horizontal", "ood")), ("vertical", ("vertical",))):
-            oracle = ("--oracle-policy", str(kept_policy(r, ORACLE_KIND, seed))) if r == "horizontal" and seed in ORACLE_SEEDS else ()
+            kinds = (*POLICY_KINDS, *((ORACLE_KIND,) if r == "horizontal" and seed in ORACLE_SEEDS else ()))
+            oracle = ("--oracle-policy", str(kept_policy(r, ORACLE_KIND, seed))) if ORACLE_KIND in kinds else ()
             plan.append(Stage(f"ablation-seed{seed}-{r}", ("ablation.py", "--sweeps", *sweeps, "--policy", str(kept_policy(r, "aware", seed)),
                                                            "--blind-policy", str(kept_policy(r, "trained_blind", seed)), *oracle,
                                                            "--results", str(out), "--figures", str(out / "figures")),
-                              out / f"ablation_{sweeps[-1]}.json"))
+                              out / f"ablation_{sweeps[-1]}.json",
+                              needs=tuple(_stage_name(policy_run(r, kind, seed)) for kind in kinds)))
     plan += [
         Stage("perception-value", ("perception_value.py",), ROOT / "results" / "perception_value.json"),
         Stage("ship-policies", (), CHECKPOINTS / "policy_vertical_trained_blind.pt", after=ship_median_seeds),
@@ -120,6 +130,8 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
 
 
 REGIMES = ("horizontal", "vertical")
+DEFAULT_JOBS = 2  # stages at once (--jobs): every recipe runs on one thread, and the target machine has 2 cores
+PPO_RECIPES = {"horizontal": "ppo_horizontal.py", "vertical": "ppo_vertical_curriculum.py"}
 SEEDS = (0, 1, 2, 3, 4)  # five per regime and kind (issue 25): the shipped one is the median by validation
 # the policies trained per regime and seed, with their recipe options: the paper's wind-aware
 # policy, and one trained from scratch with its wind inputs zeroed (the perception baseline)
@@ -136,6 +148,11 @@ SEED_RESULTS = ROOT / "results" / "seeds"
 def policy_run(regime: str, kind: str, seed: int) -> Path:
     suffix = "" if kind == "aware" else f"_{kind}"
     return ROOT / "runs" / f"ppo_{regime}{suffix}_seed{seed}"
+
+
+def _stage_name(run: Path) -> str:
+    """A PPO run's stage, named after its folder (``ppo-horizontal-trained-blind-seed1``)."""
+    return run.name.replace("_", "-")
 
 
 def kept_policy(regime: str, kind: str, seed: int) -> Path:
@@ -198,7 +215,12 @@ def main() -> None:
     parser.add_argument("--force", nargs="*", default=[], help="stages to rerun even if their output exists ('all' for every stage)")
     parser.add_argument("--only", nargs="*", default=None, help="run only these stages")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "quick", help="--quick: where everything goes (default runs/quick)")
+    parser.add_argument("--jobs", type=int, default=DEFAULT_JOBS,
+                        help=f"stages run at once, each a single-threaded process (default {DEFAULT_JOBS}: one per core of a "
+                             "2-core machine); a stage starts once the stages it reads have finished")
     args = parser.parse_args()
+    if args.jobs < 1:
+        parser.error(f"--jobs={args.jobs}: run at least 1 stage at a time")
 
     plan = stages(args.quick, args.out.resolve())
     names = [s.name for s in plan]
@@ -210,29 +232,89 @@ def main() -> None:
     hold_for_command(times, what="reproduction record",
                      hint="wait for that reproduction to finish" + (", or choose another --out" if args.quick else ""))
     start = time.perf_counter()
-    for stage in plan:
-        if args.only is not None and stage.name not in args.only:
-            continue
-        forced = "all" in args.force or stage.name in args.force
-        if stage.output.exists() and not forced and stage.name != "report":
-            print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
-            continue
-        t0, commit = time.perf_counter(), git_commit()  # before the stage writes shipped (tracked) files
-        if stage.args:
-            cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
-            if forced and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
-                cmd.append("--overwrite")
-            print(f"[{stage.name}] {' '.join(cmd[1:])}", flush=True)
-            subprocess.run(cmd, cwd=ROOT, check=True)
+    selected = [s for s in plan if args.only is None or s.name in args.only]
+    run_stages(selected, plan, args.force, args.jobs, times)
+    elapsed = time.perf_counter() - start
+    print(f"this session's stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min); per stage, over sessions: {times}")
+    if args.quick:
+        print(toy_summary(args.out.resolve()))
+
+
+def _needs(stage: Stage, plan: list[Stage]) -> tuple[str, ...]:
+    """The stages ``stage`` waits for: its own list, or every stage before it in the plan."""
+    if stage.needs is not None:
+        return stage.needs
+    return tuple(s.name for s in plan[:plan.index(stage)])
+
+
+class _Running:
+    """One stage's recipe, running as its own process; its output lines, prefixed with the
+    stage's name, reach this process's stdout whole (stages that run at once interleave by line)."""
+
+    def __init__(self, stage: Stage, cmd: list[str]):
+        self.stage, self.t0, self.commit = stage, time.perf_counter(), git_commit()  # before it writes shipped files
+        print(f"[{stage.name}] {' '.join(cmd[1:])}", flush=True)
+        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
+                                     env={**os.environ, "PYTHONUNBUFFERED": "1"})  # lines as they come, not at exit
+        self.relay = threading.Thread(target=self._relay, daemon=True)
+        self.relay.start()
+
+    def _relay(self) -> None:
+        for line in self.proc.stdout:
+            print(f"[{self.stage.name}] {line}", end="", flush=True)
+
+
+def run_stages(selected: list[Stage], plan: list[Stage], force: list[str], jobs: int, times: Path) -> None:
+    """Run ``selected`` (in ``plan``'s order), up to ``jobs`` at once, each once the stages it
+    needs have finished or are not selected; a stage whose output exists is skipped unless forced.
+    On a failure no new stage starts, the running ones finish, and the command exits 1."""
+    names = {s.name for s in selected}
+    waiting, running, finished, failed = list(selected), [], set(), []
+
+    def finish(stage: Stage, t0: float, commit: str | None) -> None:
         if stage.after is not None:
             stage.after()
         seconds = time.perf_counter() - t0
         print(f"[{stage.name}] finished in {seconds:.0f} s", flush=True)
         record_time(times, stage.name, seconds, commit)
-    elapsed = time.perf_counter() - start
-    print(f"this session's stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min); per stage, over sessions: {times}")
-    if args.quick:
-        print(toy_summary(args.out.resolve()))
+        finished.add(stage.name)
+
+    while waiting or running:
+        for stage in [s for s in waiting if not failed and all(n in finished or n not in names for n in _needs(s, plan))]:
+            forced = "all" in force or stage.name in force
+            if stage.output.exists() and not forced and stage.name != "report":
+                print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
+                waiting.remove(stage)
+                finished.add(stage.name)
+                continue
+            if len(running) == jobs:
+                break
+            waiting.remove(stage)
+            if not stage.args:
+                finish(stage, time.perf_counter(), git_commit())
+                continue
+            cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
+            if forced and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
+                cmd.append("--overwrite")
+            running.append(_Running(stage, cmd))
+        if failed and not running:
+            break
+        if not running:
+            if waiting:  # nothing can start: only a failure or a cycle leaves stages waiting
+                raise RuntimeError(f"stages {[s.name for s in waiting]} wait for stages that never run")
+            break
+        time.sleep(0.2)
+        for job in [j for j in running if j.proc.poll() is not None]:
+            running.remove(job)
+            job.relay.join()
+            if job.proc.returncode == 0:
+                finish(job.stage, job.t0, job.commit)
+            else:
+                print(f"[{job.stage.name}] failed (exit status {job.proc.returncode})", flush=True)
+                failed.append(job.stage.name)
+    if failed:
+        raise SystemExit(f"error: stage{'s' if len(failed) > 1 else ''} {', '.join(failed)} failed; "
+                         f"{len(waiting)} stage{'s' if len(waiting) != 1 else ''} did not start")
 
 
 def record_time(path: Path, stage: str, seconds: float, commit: str | None) -> None:

@@ -146,3 +146,61 @@ def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_pat
         assert json.loads((tmp_path / "results" / f"ablation_{sweep}.json").read_text())["seed"] == seed
         panels, _ = ABLATION_FIGURES[sweep]
         assert (tmp_path / "docs" / "figures" / panels[0][1]).read_text() == f"{sweep} seed {seed}"
+
+
+_STAMP = """import json, sys, time
+name, seconds, out = sys.argv[1], float(sys.argv[2]), sys.argv[3]
+t0 = time.time()
+print(f"{name} starts")
+time.sleep(seconds)
+if name.startswith("fail"):
+    sys.exit(3)
+open(out, "w").write(json.dumps({"start": t0, "end": time.time()}))
+"""
+
+
+def _stamp_stages(reproduce, folder: Path, spec: dict[str, tuple[float, tuple[str, ...] | None]]):
+    """Stages running ``recipes/stamp.py`` under ``folder``: name -> (seconds, needs)."""
+    return [reproduce.Stage(name, ("stamp.py", name, str(seconds), str(folder / f"{name}.json")), folder / f"{name}.json",
+                            needs=needs) for name, (seconds, needs) in spec.items()]
+
+
+def _span(folder: Path, name: str) -> tuple[float, float]:
+    d = json.loads((folder / f"{name}.json").read_text())
+    return d["start"], d["end"]
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_stages_run_as_soon_as_what_they_read_is_done(tmp_path, monkeypatch, capsys, jobs):
+    """Up to ``jobs`` stage processes at once, each after the stages it needs (all earlier ones
+    when it names none); their output lines carry the stage's name; each time is recorded."""
+    reproduce = _load_reproduce(monkeypatch)
+    (tmp_path / "recipes").mkdir()
+    (tmp_path / "recipes" / "stamp.py").write_text(_STAMP)
+    monkeypatch.setattr(reproduce, "ROOT", tmp_path)
+    plan = _stamp_stages(reproduce, tmp_path, {"a": (1.0, ()), "b": (1.0, ()), "c": (0.2, ("a",)), "d": (0.1, None)})
+    times = tmp_path / "pipeline_times.json"
+    reproduce.run_stages(plan, plan, [], jobs, times)
+    a, b, c, d = (_span(tmp_path, n) for n in "abcd")
+    overlap = a[0] < b[1] and b[0] < a[1]
+    assert overlap == (jobs == 2)
+    assert c[0] >= a[1] and d[0] >= max(a[1], b[1], c[1])
+    out = capsys.readouterr().out
+    assert all(f"[{n}] {n} starts" in out for n in "abcd")
+    assert set(json.loads(times.read_text())) == set("abcd")
+    # done stages are skipped, and a stage whose needs are not selected runs
+    reproduce.run_stages(plan[2:3], plan, [], jobs, times)
+    assert "[c] done already" in capsys.readouterr().out
+
+
+def test_a_failed_stage_starts_nothing_more_and_the_command_fails(tmp_path, monkeypatch, capsys):
+    reproduce = _load_reproduce(monkeypatch)
+    (tmp_path / "recipes").mkdir()
+    (tmp_path / "recipes" / "stamp.py").write_text(_STAMP)
+    monkeypatch.setattr(reproduce, "ROOT", tmp_path)
+    plan = _stamp_stages(reproduce, tmp_path, {"fail": (0.1, ()), "slow": (1.0, ()), "after": (0.1, ("fail",)), "later": (0.1, ())})
+    with pytest.raises(SystemExit, match="stage fail failed; 2 stages did not start"):
+        reproduce.run_stages(plan, plan, [], 2, tmp_path / "pipeline_times.json")
+    assert (tmp_path / "slow.json").exists()  # the running one finished
+    assert not (tmp_path / "after.json").exists() and not (tmp_path / "later.json").exists()
+    assert "[fail] failed (exit status 3)" in capsys.readouterr().out
