@@ -19,12 +19,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import time
 
 import torch
-from machine import load_1min, machine_line
+from machine import in_fresh_process, load_1min, machine_line
 
 
 def measure(n: int, workers: int, every_s: float, warm_steps: int, steps: int) -> dict:
@@ -75,12 +73,8 @@ def main() -> None:
     print(machine_line(threads=1, workers=max(args.workers)), flush=True)
     for n in args.sizes:
         for w in args.workers:
-            proc = subprocess.run([sys.executable, __file__, "--one", str(n), str(w), "--estimate-every-s",
-                                   str(args.estimate_every_s), "--warm-steps", str(args.warm_steps), "--steps", str(args.steps)],
-                                  capture_output=True, text=True, check=True)
-            r = json.loads(proc.stdout.strip().splitlines()[-1])
-            print("collect_workers " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()),
-                  flush=True)
+            in_fresh_process("collect_workers", __file__, "--one", str(n), str(w), "--estimate-every-s", str(args.estimate_every_s),
+                             "--warm-steps", str(args.warm_steps), "--steps", str(args.steps))
 
 
 if __name__ == "__main__":

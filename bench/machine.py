@@ -8,8 +8,11 @@ beside each figure.
 from __future__ import annotations
 
 import datetime
+import json
 import os
 import platform
+import subprocess
+import sys
 
 import torch
 
@@ -28,3 +31,13 @@ def machine_line(threads: int, workers: int = 1) -> str:
         f"date={datetime.datetime.now(datetime.timezone.utc):%Y-%m-%dT%H:%MZ} cpu={platform.machine()} "
         f"torch={torch.__version__} torchrl={torchrl.__version__}"
     )
+
+
+def in_fresh_process(label: str, script: str, *args: str) -> dict:
+    """Run ``script`` with ``args`` in a fresh interpreter (a measurement as a user's process
+    makes it: no compiled code or warm caches from an earlier setting), read the JSON object it
+    prints last, and print it as one parseable line ``label key=value ...``."""
+    proc = subprocess.run([sys.executable, script, *args], capture_output=True, text=True, check=True)
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    print(label + " " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in result.items()), flush=True)
+    return result

@@ -24,12 +24,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
-import sys
 import time
+from typing import Callable
 
 import torch
-from machine import load_1min, machine_line
+from machine import in_fresh_process, load_1min, machine_line
 
 SETTINGS = ("eager", "compiled")
 
@@ -43,14 +42,19 @@ def _mlp_flops(cfg, obs_dim: int, action_dim: int, batch: int) -> float:
     return 3.0 * batch * flops
 
 
-def _sgemm_gflops(batch: int, width: int, reps: int = 200) -> float:
+def _sgemm_gflops(batch: int, width: int) -> float:
     a, w = torch.randn(batch, width), torch.randn(width, width)
-    for _ in range(20):
-        a @ w
+    return 2.0 * batch * width * width / seconds_per_call(lambda: a @ w, 20, 200) / 1e9
+
+
+def seconds_per_call(fn: Callable[[], object], warm: int, reps: int) -> float:
+    """Mean wall seconds of ``fn()`` over ``reps`` calls after ``warm`` untimed ones."""
+    for _ in range(warm):
+        fn()
     t0 = time.perf_counter()
     for _ in range(reps):
-        a @ w
-    return 2.0 * batch * width * width * reps / (time.perf_counter() - t0) / 1e9
+        fn()
+    return (time.perf_counter() - t0) / reps
 
 
 def measure(setting: str, threads: int, steps: int) -> dict:
@@ -87,12 +91,7 @@ def measure(setting: str, threads: int, steps: int) -> dict:
         torch.nn.utils.clip_grad_norm_(learner.params, cfg.max_grad_norm)
         learner.optim.step()
 
-    for _ in range(10):
-        step()
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        step()
-    per_step = (time.perf_counter() - t0) / steps
+    per_step = seconds_per_call(step, 10, steps)
     # the MLPs alone, forward and backward, to say how much of the step they are
     mlps = [actor.module[0].module[0], value.module]
     x = td["observation"]
@@ -100,12 +99,7 @@ def measure(setting: str, threads: int, steps: int) -> dict:
     def mlp_pass() -> None:
         sum(m(x).square().mean() for m in mlps).backward()
 
-    for _ in range(5):
-        mlp_pass()
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        mlp_pass()
-    per_mlp = (time.perf_counter() - t0) / steps
+    per_mlp = seconds_per_call(mlp_pass, 5, steps)
     per_update = cfg.epochs * cfg.frames_per_batch // batch
     return {"setting": setting, "threads": threads, "ms_per_step": 1e3 * per_step, "ms_per_update": per_update * per_step * 1e3,
             "mlp_share": per_mlp / per_step, "mlp_gflops": _mlp_flops(cfg, OBSERVATION_DIM, 4, batch) / per_mlp / 1e9,
@@ -125,11 +119,7 @@ def main() -> None:
     print(machine_line(threads=max(args.threads)), flush=True)
     for threads in args.threads:
         for setting in args.settings:
-            proc = subprocess.run([sys.executable, __file__, "--one", setting, str(threads), "--steps", str(args.steps)],
-                                  capture_output=True, text=True, check=True)
-            r = json.loads(proc.stdout.strip().splitlines()[-1])
-            print("update_step " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.items()),
-                  flush=True)
+            in_fresh_process("update_step", __file__, "--one", setting, str(threads), "--steps", str(args.steps))
 
 
 if __name__ == "__main__":
