@@ -279,29 +279,34 @@ def run_stages(selected: list[Stage], plan: list[Stage], force: list[str], jobs:
         record_time(times, stage.name, seconds, commit)
         finished.add(stage.name)
 
-    while waiting or running:
-        for stage in [s for s in waiting if not failed and all(n in finished or n not in names for n in _needs(s, plan))]:
-            forced = "all" in force or stage.name in force
-            if stage.output.exists() and not forced and stage.name != "report":
-                print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
-                waiting.remove(stage)
-                finished.add(stage.name)
-                continue
-            if len(running) == jobs:
-                break
+    def forced(stage: Stage) -> bool:
+        return "all" in force or stage.name in force
+
+    def done_already(stage: Stage) -> bool:
+        return stage.output.exists() and not forced(stage) and stage.name != "report"
+
+    def start_ready() -> None:
+        """Skip, finish or start every stage that can go now (in plan order), until none can."""
+        while not failed:
+            ready = [s for s in waiting if all(n in finished or n not in names for n in _needs(s, plan))]
+            stage = next((s for s in ready if done_already(s)), None) or (ready[0] if ready and len(running) < jobs else None)
+            if stage is None:
+                return
             waiting.remove(stage)
-            if not stage.args:
+            if done_already(stage):
+                print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
+                finished.add(stage.name)
+            elif not stage.args:
                 finish(stage, time.perf_counter(), git_commit())
-                continue
-            cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
-            if forced and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
-                cmd.append("--overwrite")
-            running.append(_Running(stage, cmd))
-        if failed and not running:
-            break
+            else:
+                cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
+                if forced(stage) and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
+                    cmd.append("--overwrite")
+                running.append(_Running(stage, cmd))
+
+    while True:
+        start_ready()
         if not running:
-            if waiting:  # nothing can start: only a failure or a cycle leaves stages waiting
-                raise RuntimeError(f"stages {[s.name for s in waiting]} wait for stages that never run")
             break
         time.sleep(0.2)
         for job in [j for j in running if j.proc.poll() is not None]:
@@ -315,6 +320,8 @@ def run_stages(selected: list[Stage], plan: list[Stage], force: list[str], jobs:
     if failed:
         raise SystemExit(f"error: stage{'s' if len(failed) > 1 else ''} {', '.join(failed)} failed; "
                          f"{len(waiting)} stage{'s' if len(waiting) != 1 else ''} did not start")
+    if waiting:  # nothing failed, yet these could never start: they need a stage that is not in the plan
+        raise RuntimeError(f"stages {[s.name for s in waiting]} wait for stages that never run")
 
 
 def record_time(path: Path, stage: str, seconds: float, commit: str | None) -> None:

@@ -191,6 +191,14 @@ def test_stages_run_as_soon_as_what_they_read_is_done(tmp_path, monkeypatch, cap
     # done stages are skipped, and a stage whose needs are not selected runs
     reproduce.run_stages(plan[2:3], plan, [], jobs, times)
     assert "[c] done already" in capsys.readouterr().out
+    # a rerun skips what is done, runs what is forced, and what runs in this process (``after``
+    # only) follows what it needs
+    ran = []
+    shipped = reproduce.Stage("ship", (), tmp_path / "shipped", after=lambda: ran.append(_span(tmp_path, "d")))
+    reproduce.run_stages([*plan, shipped], [*plan, shipped], ["d"], jobs, times)
+    out = capsys.readouterr().out
+    assert all(f"[{n}] done already" in out for n in "abc") and "[d] d starts" in out
+    assert ran == [_span(tmp_path, "d")] and _span(tmp_path, "d")[0] > d[1]
 
 
 def test_a_failed_stage_starts_nothing_more_and_the_command_fails(tmp_path, monkeypatch, capsys):
