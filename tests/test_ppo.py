@@ -99,6 +99,55 @@ class Interrupt(Exception):
     pass
 
 
+def _two_hover_validation_episodes():
+    sc = validation_scenarios("horizontal", 2)
+    sc.update({"traj_id": torch.tensor([9, 9]), "altitude_m": torch.tensor([10.0, 10.0]), "start_step": torch.tensor([-1, -1])})
+    return sc
+
+
+def test_background_evaluation_records_what_the_training_process_would_across_a_resume(tmp_path):
+    """Evaluated in a second process while training goes on, a run records the evaluations, keeps
+    the policy and logs each evaluation once, as the run that evaluates in its own process does, when
+    both are interrupted after their second update and resumed; the background run's checkpoint
+    held its first evaluation in flight (the evaluation process was still starting) and the resumed
+    run flew it again."""
+    spec = hover_spec(duration_s=1.0)
+    sc = _two_hover_validation_episodes()
+
+    def interrupt_after_second(metrics: dict) -> None:
+        if metrics["frames"] == 2 * BATCH:
+            raise Interrupt
+
+    runs = {}
+    for background in (False, True):
+        cfg = PPOConfig(total_frames=4 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
+                        lr=3e-2, eval_every_frames=1, checkpoint_every_frames=1, background_eval=background)
+        run = runs[background] = tmp_path / f"background_{background}"
+        with pytest.raises(Interrupt):
+            PPOTrainer(spec, cfg, run, eval_scenarios=sc, progress=False, on_iteration=interrupt_after_second).train()
+        in_flight = torch.load(run / "checkpoints" / "latest.pt", weights_only=True)["evals_in_flight"]
+        assert [job["frames"] for job in in_flight] == ([BATCH] if background else [])
+        PPOTrainer(spec, cfg, run, eval_scenarios=sc, progress=False).train(resume=True)
+    manifests = {bg: json.loads((run / "policy.json").read_text()) for bg, run in runs.items()}
+    evals = {bg: [{k: v for k, v in e.items() if k != "eval_s"} for e in m["evals"]] for bg, m in manifests.items()}
+    assert [e["frames"] for e in evals[True]] == [BATCH, 2 * BATCH, 3 * BATCH, 4 * BATCH]
+    assert evals[True] == evals[False] and manifests[True]["selection"] == manifests[False]["selection"]
+    kept = {bg: torch.load(run / "policy.pt", weights_only=True)["policy"] for bg, run in runs.items()}
+    assert all(torch.equal(kept[True][k], kept[False][k]) for k in kept[False])
+    logs = {bg: (run / "logs" / "ppo" / "scalars" / "eval" / "validation_score.csv").read_text() for bg, run in runs.items()}
+    assert logs[True] == logs[False] and len(logs[True].splitlines()) == 4
+
+
+def test_a_failed_background_evaluation_stops_the_run_with_its_error(tmp_path):
+    spec = hover_spec(duration_s=1.0)
+    sc = _two_hover_validation_episodes()
+    sc["wind_speed_ref_m_s"][:] = float("nan")  # the evaluation process refuses the episodes
+    cfg = PPOConfig(total_frames=2 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
+                    eval_every_frames=1, background_eval=True)
+    with pytest.raises(RuntimeError, match=r"(?s)background evaluation failed.*wind_speed_ref_m_s"):
+        PPOTrainer(spec, cfg, tmp_path / "run", eval_scenarios=sc, progress=False).train()
+
+
 def test_linear_lr_schedule_reaches_the_optimiser_and_survives_resume(tmp_path):
     """The decay is a function of frames, set before every update: a run interrupted after its
     second update and resumed logs and uses the planned rate at every update; a resume under other

@@ -58,6 +58,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--collect-workers", type=int, default=None,
                    help="collection processes, one single-threaded simulator per core, each stepping num_envs / W rows "
                         "(default 1; the rows fly the same episodes whatever W: a speed setting, which --resume may change)")
+    p.add_argument("--background-eval", action="store_true", default=None,
+                   help="fly the periodic evaluations in a second process while training goes on (the same metrics; "
+                        "a speed setting, which --resume may change)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", help="torch device of the simulator, estimator and networks (cpu, cuda, ...)")
     p.add_argument("--ema-tau-s", type=float, default=None,
@@ -142,7 +145,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     overrides = {"seed": args.seed, "threads": args.threads}
     for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
                       ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
-                      ("reward_scaling", "reward_scaling"), ("collect_workers", "collect_workers")):
+                      ("reward_scaling", "reward_scaling"), ("collect_workers", "collect_workers"),
+                      ("background_eval", "background_eval")):
         if getattr(args, arg) is not None:
             overrides[name] = getattr(args, arg)
     try:

@@ -79,6 +79,9 @@ class PPOConfig:
     # collection processes (rl.envs.build_env(workers=)): one single-threaded simulator process per
     # core, each stepping num_envs / collect_workers rows; the rows fly the same episodes as with 1
     collect_workers: int = 1
+    # fly the periodic evaluations in a child process while training goes on (rl.evaluator): the
+    # same metrics, off the run's critical path where a core is idle during collection
+    background_eval: bool = False
 
     @property
     def frames_per_batch(self) -> int:

@@ -1,9 +1,14 @@
 """The PPO trainer: collect a batch -> update -> (periodically) evaluate against PD -> checkpoint.
 
 Each piece is its own method; :meth:`PPOTrainer.train` is the loop calling them. The update is
-:class:`~quadwind_trl.rl.update.PPOUpdate`, the evaluation flies through
-:func:`~quadwind_trl.rl.paired.fly_paired` (as the ablation does), the policy file format is
-:func:`~quadwind_trl.rl.policy.policy_payload`. Settings: :class:`~quadwind_trl.rl.config.PPOConfig`.
+:class:`~quadwind_trl.rl.update.PPOUpdate`, the evaluation is
+:func:`~quadwind_trl.rl.evaluator.evaluate_against_pd` (flown through
+:func:`~quadwind_trl.rl.paired.fly_paired`, as the ablation is), in this process or, with
+``PPOConfig.background_eval``, in a second one while training goes on
+(:class:`~quadwind_trl.rl.evaluator.BackgroundEvaluator`: the run records each result when it
+arrives, its checkpoints hold the evaluations still in flight, and its end waits for them). The
+policy file format is :func:`~quadwind_trl.rl.policy.policy_payload`. Settings:
+:class:`~quadwind_trl.rl.config.PPOConfig`.
 """
 from __future__ import annotations
 
@@ -14,13 +19,12 @@ from pathlib import Path
 from typing import Callable
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType
 from torchrl.record.loggers import Logger
 
 from ..config import EnvConfig, config_differences, config_from_dict
-from ..envs.runner import FlightResults
 from ..estimator import WindEstimator
 from ..manifest import command_line, git_commit, platform_info, repo_relative, save_atomic, write_json
 from ..outputs import OutputLock, truncate_scalar_logs
@@ -28,7 +32,8 @@ from ..keys import OBSERVATION_CHANNELS
 from .config import Curriculum, PPOConfig
 from .envs import (EnvFactory, RLEnvSpec, estimator_seconds, load_vecnorm_state, policy_env_settings, set_trajectories,
                    vecnorm_state_dict)
-from .paired import VALIDATION_TAIL_FRACTION, fly_paired, paired_metrics
+from .evaluator import BackgroundEvaluator, evaluate_against_pd, from_bytes, to_bytes
+from .paired import VALIDATION_TAIL_FRACTION
 from .policy import action_scale, build_actor_critic, policy_payload, spec_to_dict
 from .update import PPOUpdate
 
@@ -36,7 +41,7 @@ from .update import PPOUpdate
 # PPOConfig fields a resumed run may change: how long it runs, how often it evaluates and
 # checkpoints, and its threads and processes; any other change would make it another recipe
 RESUMABLE_CHANGES = ("total_frames", "eval_every_frames", "checkpoint_every_frames", "threads", "update_threads",
-                     "collect_workers")
+                     "collect_workers", "background_eval")
 # what runs saved before a PPOConfig field existed used (their checkpoints lack it)
 SAVED_BEFORE_FIELD = {"lr_schedule": "constant", "reward_scaling": "none"}
 
@@ -131,11 +136,15 @@ class _Session:
 
     learner: PPOUpdate
     env: TransformedEnv
-    eval_env: TransformedEnv | None
+    eval_env: TransformedEnv | None  # the evaluation's env, in this process (None: none, or in the background)
+    evaluator: BackgroundEvaluator | None  # PPOConfig.background_eval
     progress: Progress
     logger: Logger
     result: PPOResult
     wall0: float  # perf_counter() at which the run's wall time would have been 0
+    # background evaluations in flight: the snapshot's frames -> (iteration, its policy file as bytes)
+    in_flight: dict[int, tuple[int, bytes]] = field(default_factory=dict)
+    stop: bool = False  # stop_when said so
 
     def tick(self) -> float:
         """Update and return the run's wall time."""
@@ -205,8 +214,12 @@ class PPOTrainer:
         # one writer per run directory: a second run on it (a resume included) is refused at once
         with OutputLock(self.out_dir, "training run", "wait for it to finish, or choose another out_dir (--out)"):
             session = self._start(self._check_resume(resume))
-            if session.progress.frames < self.cfg.planned_frames:
-                self._collect_and_update(session)
+            try:
+                if session.progress.frames < self.cfg.planned_frames:
+                    self._collect_and_update(session)
+            finally:
+                if session.evaluator is not None:
+                    session.evaluator.close()
             return self._finish(session)
 
     def _collect_and_update(self, s: _Session) -> None:
@@ -229,13 +242,16 @@ class PPOTrainer:
                 bar.set_postfix(r=f"{metrics['reward_mean']:.3f}", ret=f"{metrics.get('episode_return', float('nan')):.0f}")
                 if self.on_iteration is not None:
                     self.on_iteration(metrics)
-                stop = False
                 if self._evaluation_due(s):
                     self._evaluate(s)
-                    stop = self.stop_when is not None and self.stop_when(s.progress.evals)
-                if stop or self._checkpoint_due(s):
+                if s.evaluator is not None:
+                    # the run's last checkpoint holds every evaluation: at its end, wait for those in flight
+                    self._receive_evaluations(s, wait=self._finished(s.progress))
+                    if s.stop:
+                        self._receive_evaluations(s, wait=True)
+                if s.stop or self._checkpoint_due(s):
                     self._checkpoint(s)
-                if stop or self._finished(s.progress):
+                if s.stop or self._finished(s.progress):
                     break
                 t_collect0 = time.perf_counter()
         finally:
@@ -285,12 +301,19 @@ class PPOTrainer:
             load_vecnorm_state(env, checkpoint["vecnorm"])
         if self.curriculum is not None:
             self._apply_stage(env, progress.stage, truncate=False)
-        eval_env = None
-        if self.eval_scenarios is not None:
+        eval_env = evaluator = None
+        if self.eval_scenarios is not None and cfg.background_eval:
+            evaluator = BackgroundEvaluator(self.factory, self.eval_scenarios, cfg, seed=spec.seed + 1)
+        elif self.eval_scenarios is not None:
             eval_env = self.factory(num_envs=self.eval_scenarios.batch_size[0], seed=spec.seed + 1, desync_steps=0)
         result = PPOResult(self.out_dir, progress.frames, progress.iteration, evals=list(progress.evals))
-        return _Session(learner, env, eval_env, progress, self._make_logger(progress.frames), result,
-                        wall0=time.perf_counter() - progress.wall)
+        s = _Session(learner, env, eval_env, evaluator, progress, self._make_logger(progress), result,
+                     wall0=time.perf_counter() - progress.wall)
+        # evaluations in flight when the checkpoint was written are flown again, in this session's
+        # evaluation process (or here)
+        for job in (checkpoint or {}).get("evals_in_flight", []):
+            self._evaluate(s, job["frames"], job["iteration"], job["policy"])
+        return s
 
     def _iteration(self, s: _Session, data: TensorDictBase, gen: torch.Generator, collect_s: float) -> dict:
         """Update on one collected batch; advance the counters and the curriculum; log."""
@@ -348,40 +371,58 @@ class PPOTrainer:
 
     def _evaluation_due(self, s: _Session) -> bool:
         p, every = s.progress, self.cfg.eval_every_frames
-        return s.eval_env is not None and (self._finished(p) or (every and p.frames - p.last_eval_frames >= every))
+        return self.eval_scenarios is not None and (self._finished(p) or (every and p.frames - p.last_eval_frames >= every))
 
     def _checkpoint_due(self, s: _Session) -> bool:
         p = s.progress
         return self._finished(p) or p.frames - p.last_ckpt_frames >= self.cfg.checkpoint_every_frames
 
-    def _evaluate(self, s: _Session) -> None:
-        """The deterministic policy against PD on the evaluation scenarios (PD flown once and
-        cached: its flights never change), with the training normalisation frozen."""
+    def _evaluate(self, s: _Session, frames: int | None = None, iteration: int | None = None,
+                  policy: bytes | None = None) -> None:
+        """The deterministic policy against PD on the evaluation scenarios
+        (:func:`~quadwind_trl.rl.evaluator.evaluate_against_pd`), with the training normalisation
+        frozen: here, or submitted to the background evaluator (``policy``, ``frames``,
+        ``iteration``: a snapshot taken earlier, by default the current one)."""
         p = s.progress
-        load_vecnorm_state(s.eval_env, vecnorm_state_dict(s.env))
-        t0 = time.perf_counter()
-        flights = {"policy": (s.eval_env, s.learner.actor)}
-        if p.pd_eval is None:
-            flights = {"pd": (s.eval_env, None), **flights}
-        flown = fly_paired(flights, self.eval_scenarios)
-        if p.pd_eval is None:
-            pd = flown["pd"]
-            p.pd_eval = {"index": pd.index, "rmse_xy": pd.rmse_xy, "rmse_z": pd.rmse_z, "crashed": pd.crashed}
-        pd = FlightResults(**p.pd_eval, log=TensorDict({}, batch_size=[p.pd_eval["index"].numel(), 0]))
-        metrics = paired_metrics(flown["policy"], pd)
-        metrics["eval_s"] = time.perf_counter() - t0
-        metrics["frames"] = p.frames
-        p.last_eval_frames = p.frames
+        if frames is None:
+            frames, iteration, policy = p.frames, p.iteration, to_bytes(self._policy_file(s))
+            p.last_eval_frames = p.frames
+        if s.evaluator is None:
+            snapshot, actor = from_bytes(policy), s.learner.actor
+            if frames != p.frames:  # a snapshot a resumed checkpoint held in flight: its own actor
+                with torch.random.fork_rng():  # building it draws initial weights: not from the run's stream
+                    actor = build_actor_critic(self.cfg)[0].to(self.spec.device)
+                actor.load_state_dict(snapshot["policy"])
+            metrics, p.pd_eval = evaluate_against_pd(s.eval_env, actor, snapshot["vecnorm"], self.eval_scenarios, p.pd_eval)
+            self._record_evaluation(s, frames, iteration, policy, metrics)
+        else:
+            s.in_flight[frames] = (iteration, policy)
+            s.evaluator.submit(frames, from_bytes(policy), p.pd_eval)
+
+    def _receive_evaluations(self, s: _Session, wait: bool) -> None:
+        """Record the background evaluations that have finished (with ``wait``: all of them)."""
+        for done in s.evaluator.receive(wait):
+            if s.progress.pd_eval is None:
+                s.progress.pd_eval = done.pd_eval
+            iteration, policy = s.in_flight.pop(done.frames)
+            self._record_evaluation(s, done.frames, iteration, policy, done.metrics)
+
+    def _record_evaluation(self, s: _Session, frames: int, iteration: int, policy: bytes, metrics: dict) -> None:
+        """Log one evaluation of the snapshot taken at ``frames``, keep its policy if it is the best
+        so far (:data:`SELECTION_RULE`), and ask ``stop_when``."""
+        p = s.progress
+        metrics["frames"] = frames
         p.evals = list(p.evals) + [metrics]
-        self._log(s.logger, "eval", metrics, p.frames)
+        self._log(s.logger, "eval", metrics, frames)
         if p.best is None or metrics["validation_score"] < p.best["validation_score"]:
-            save_atomic(self._policy_file(s), self.best_path)
-            p.best = {"frames": p.frames, "iteration": p.iteration, "validation_score": metrics["validation_score"]}
+            save_atomic(from_bytes(policy), self.best_path)
+            p.best = {"frames": frames, "iteration": iteration, "validation_score": metrics["validation_score"]}
         if self.progress:
-            print(f"[eval @ {p.frames} frames] rmse {metrics['rmse']:.3f} m vs PD {metrics['pd_rmse']:.3f} m "
+            print(f"[eval @ {frames} frames] rmse {metrics['rmse']:.3f} m vs PD {metrics['pd_rmse']:.3f} m "
                   f"(RMSE reduction {metrics['improvement_vs_pd']:+.1f} %, positive = better), win rate {metrics['win_rate']:.2f}, "
                   f"crashed {metrics['crashed']}, validation score {metrics['validation_score']:.3f} m"
-                  f"{' (best so far)' if p.best['frames'] == p.frames else ''}, {metrics['eval_s']:.0f} s", flush=True)
+                  f"{' (best so far)' if p.best['frames'] == frames else ''}, {metrics['eval_s']:.0f} s", flush=True)
+        s.stop = s.stop or (self.stop_when is not None and self.stop_when(p.evals))
 
     def _checkpoint(self, s: _Session) -> None:
         """``checkpoints/latest.pt``: everything :meth:`train` needs to resume, and its manifest."""
@@ -390,6 +431,8 @@ class PPOTrainer:
         s.tick()
         payload = policy_payload(s.learner.actor, vecnorm_state_dict(s.env), self.cfg, self.spec)
         payload.update(s.learner.state_dict(), rng=torch.random.get_rng_state(), progress=asdict(p))
+        # background evaluations not yet back: a resumed run flies them again
+        payload["evals_in_flight"] = [{"frames": f, "iteration": i, "policy": policy} for f, (i, policy) in s.in_flight.items()]
         save_atomic(payload, self.checkpoint_path)
         write_json(self.checkpoint_path.with_suffix(".json"), self._manifest(p))
 
@@ -411,9 +454,10 @@ class PPOTrainer:
         r.frames, r.iterations, r.wall_time_s, r.evals = p.frames, p.iteration, p.wall, list(p.evals)
         return r
 
-    def _make_logger(self, frames: int) -> Logger:
-        """The run's logger; CSV logs keep only the rows up to ``frames`` (the checkpoint's, 0 for a
-        new run): what an interrupted session logged after its last checkpoint is logged again."""
+    def _make_logger(self, p: Progress) -> Logger:
+        """The run's logger; CSV logs keep only the rows up to the checkpoint's ``p`` (nothing for a
+        new run): training rows up to its frames, evaluation rows up to its last recorded evaluation
+        (a background one recorded after the checkpoint is flown and logged again)."""
         from torchrl.record import CSVLogger
 
         log_dir = str(self.out_dir / "logs")
@@ -426,7 +470,8 @@ class PPOTrainer:
                 raise ImportError(f"logger='tensorboard' needs TensorBoard: pip install -e '.[tensorboard]' ({err})") from None
         if self.logger_kind != "csv":
             raise ValueError(f"logger={self.logger_kind!r}; allowed: 'csv', 'tensorboard'")
-        truncate_scalar_logs(Path(log_dir) / "ppo" / "scalars", lambda name: frames)
+        last_eval = p.evals[-1]["frames"] if p.evals else -1
+        truncate_scalar_logs(Path(log_dir) / "ppo" / "scalars", lambda name: last_eval if name.startswith("eval/") else p.frames)
         return CSVLogger(exp_name="ppo", log_dir=log_dir)
 
     @staticmethod

@@ -1,0 +1,150 @@
+"""The trainer's periodic evaluation against PD, in the training process or beside it.
+
+:func:`evaluate_against_pd` is the evaluation itself: the deterministic policy under the training
+normalisation, frozen, against PD on the same replayed episodes (PD flown once and reused: its
+flights never change). :class:`BackgroundEvaluator` runs that same function in a child process
+(``PPOConfig.background_eval``): training goes on while a snapshot of the policy flies, so on a
+machine whose collection leaves a core idle the evaluations stop adding to the run's wall time.
+The child builds its eval env from the trainer's :class:`~quadwind_trl.rl.envs.EnvFactory` with
+the same seed and batch size, and flies on the run's thread count, so its metrics are those the
+training process would compute (``tests/test_ppo.py``); training never waits for it except where a
+run ends.
+
+Snapshots and results cross the process boundary as ``torch.save`` bytes: a copy taken at
+submission, so the update that follows cannot change what is evaluated.
+"""
+from __future__ import annotations
+
+import io
+import multiprocessing as mp
+import queue
+import time
+import traceback
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.envs import EnvBase
+
+from ..envs.runner import FlightResults
+from .config import PPOConfig
+from .envs import EnvFactory, load_vecnorm_state
+from .paired import Policy, fly_paired, paired_metrics
+
+# how long the parent waits for an idle child to exit after asking it to, s (then it is terminated)
+_CLOSE_TIMEOUT_S = 120.0
+
+
+def evaluate_against_pd(env: EnvBase, actor: Policy, vecnorm_state: dict, scenarios: TensorDictBase,
+                        pd_eval: dict | None) -> tuple[dict[str, float], dict]:
+    """``(metrics, pd_eval)``: :func:`~quadwind_trl.rl.paired.paired_metrics` of ``actor`` against
+    PD on ``scenarios`` in ``env`` under the normalisation ``vecnorm_state`` (frozen), and PD's
+    per-episode results (``pd_eval``, flown here when None), plus ``eval_s``, the seconds it took."""
+    load_vecnorm_state(env, vecnorm_state)
+    t0 = time.perf_counter()
+    flights = {"policy": (env, actor)}
+    if pd_eval is None:
+        flights = {"pd": (env, None), **flights}
+    flown = fly_paired(flights, scenarios)
+    if pd_eval is None:
+        pd = flown["pd"]
+        pd_eval = {"index": pd.index, "rmse_xy": pd.rmse_xy, "rmse_z": pd.rmse_z, "crashed": pd.crashed}
+    pd = FlightResults(**pd_eval, log=TensorDict({}, batch_size=[pd_eval["index"].numel(), 0]))
+    metrics = paired_metrics(flown["policy"], pd)
+    metrics["eval_s"] = time.perf_counter() - t0
+    return metrics, pd_eval
+
+
+def to_bytes(obj) -> bytes:
+    buffer = io.BytesIO()
+    torch.save(obj, buffer)
+    return buffer.getvalue()
+
+
+def from_bytes(data: bytes):
+    return torch.load(io.BytesIO(data), weights_only=True)
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    """One finished background evaluation: the snapshot's frame count, its metrics, PD's results."""
+
+    frames: int
+    metrics: dict[str, float]
+    pd_eval: dict
+
+
+def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int, jobs: mp.Queue, results: mp.Queue
+           ) -> None:
+    """The child: build the eval env and an actor once, then evaluate each job until ``None``."""
+    from .policy import build_actor_critic
+
+    try:
+        if cfg.threads:
+            torch.set_num_threads(cfg.threads)
+        env = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
+        actor = build_actor_critic(cfg)[0].to(factory.spec.device)
+        pd_eval = None
+        while (job := jobs.get()) is not None:
+            job = from_bytes(job)
+            actor.load_state_dict(job["policy"])
+            metrics, pd_eval = evaluate_against_pd(env, actor, job["vecnorm"], scenarios, job["pd_eval"] or pd_eval)
+            results.put(("done", to_bytes({"frames": job["frames"], "metrics": metrics, "pd_eval": pd_eval})))
+        env.close()
+    except BaseException:  # the parent raises it, with this traceback
+        results.put(("error", traceback.format_exc()))
+
+
+class BackgroundEvaluator:
+    """:func:`evaluate_against_pd` in a child process, one snapshot after another, in the order
+    submitted. ``factory``, ``scenarios`` and ``seed`` build the eval env the training process
+    would (``factory(num_envs=len(scenarios), seed=seed, desync_steps=0)``); ``cfg`` gives the
+    actor's architecture and the thread count."""
+
+    def __init__(self, factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int):
+        ctx = mp.get_context("spawn")  # a fresh interpreter: no state of the trainer's is inherited
+        self._jobs, self._results = ctx.Queue(), ctx.Queue()
+        self._process = ctx.Process(target=_serve, args=(factory, scenarios, cfg, seed, self._jobs, self._results),
+                                    name="background-eval", daemon=True)
+        self._process.start()
+        self.pending = 0
+
+    def submit(self, frames: int, policy_file: dict, pd_eval: dict | None) -> None:
+        """Evaluate the snapshot ``policy_file`` (:func:`~quadwind_trl.rl.policy.policy_payload`:
+        the actor's weights and the normalisation), taken at ``frames``; ``pd_eval``: PD's results
+        when known (None: the child flies PD, once)."""
+        job = {"frames": frames, "policy": policy_file["policy"], "vecnorm": policy_file["vecnorm"], "pd_eval": pd_eval}
+        self._jobs.put(to_bytes(job))
+        self.pending += 1
+
+    def receive(self, wait: bool = False) -> list[EvaluationResult]:
+        """The evaluations finished so far, oldest first; with ``wait``, every one submitted."""
+        out = []
+        while self.pending:
+            try:
+                kind, payload = self._results.get(block=wait, timeout=1.0 if wait else None)
+            except queue.Empty:
+                if not wait:
+                    break
+                if not self._process.is_alive():
+                    raise RuntimeError(f"the background evaluation process died (exit code {self._process.exitcode}) "
+                                       f"with {self.pending} evaluations in flight") from None
+                continue
+            if kind == "error":
+                raise RuntimeError(f"background evaluation failed:\n{payload}")
+            self.pending -= 1
+            out.append(EvaluationResult(**from_bytes(payload)))
+        return out
+
+    def close(self) -> None:
+        """Stop the child: at once when evaluations are still in flight (a run that failed or was
+        interrupted; a resumed run flies them again), otherwise once it has read the stop."""
+        if self._process.is_alive():
+            if not self.pending:
+                self._jobs.put(None)
+                self._process.join(_CLOSE_TIMEOUT_S)
+            if self._process.is_alive():
+                self._process.terminate()
+                self._process.join()
+        self._jobs.close()
+        self._results.close()
