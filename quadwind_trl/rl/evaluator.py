@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import io
 import multiprocessing as mp
-import os
 import queue
 import time
 import traceback
@@ -32,7 +31,6 @@ from .config import PPOConfig
 from .envs import EnvFactory, load_vecnorm_state
 from .paired import Policy, fly_paired, paired_metrics
 
-_CHILD_NICENESS = 19  # added to the evaluation process's niceness (POSIX); 19 is the lowest priority
 # how long the parent waits for an idle child to exit after asking it to, s (then it is terminated)
 _CLOSE_TIMEOUT_S = 120.0
 
@@ -82,11 +80,6 @@ def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed:
     from .policy import build_actor_critic
 
     try:
-        if hasattr(os, "nice"):
-            # the lowest priority: the evaluation takes the cycles training leaves (a core idle while the
-            # single-threaded simulator collects) rather than slowing training where the update runs on
-            # every core; measured in docs/benchmarks.md, "Time to a good policy"
-            os.nice(_CHILD_NICENESS)
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
         env = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
