@@ -29,11 +29,13 @@ Ratio = reference seconds per batch / lever seconds per batch (> 1: faster).
 
 Phase 2, the run. PPO from scratch with ``--estimate-every-s``, ``--update-threads``, ``--minibatch``,
 ``--epochs``, ``--num-envs``, ``--steps-per-env`` and ``--collect-workers`` (defaults: the speed levers on, the paper's optimisation), evaluated on the whole
-validation sweep (45 episodes) every ``--eval-every`` frames, in the training process or, with
-``--background-eval``, in a second process while training goes on; it stops at the first
-evaluation that reaches ``--target`` % xy improvement over PD (when its result is in), or at
-``--budget-s`` of wall time. One line per evaluation: frames, wall time (training only and with
-evaluations; the same with ``--background-eval``), xy improvement, wins, validation score. The run directory is a scratch folder (``--out``); nothing is committed from it.
+validation sweep (45 episodes) every ``--eval-every`` frames, by default in a second process
+while training goes on on one thread (``--no-background-eval``: in the training process, which
+then pauses for each; with ``--update-threads 2`` the update uses the core the evaluations need);
+it stops at the first evaluation that reaches ``--target`` % xy improvement over PD (when its
+result is in), or at ``--budget-s`` of wall time. One line per evaluation: frames, wall time
+(training only and with evaluations; the same when they run beside training), xy improvement,
+wins, validation score. The run directory is a scratch folder (``--out``); nothing is committed from it.
 """
 from __future__ import annotations
 
@@ -167,13 +169,14 @@ def main() -> None:
     parser.add_argument("--max-frames", type=int, default=1_500_000)
     parser.add_argument("--eval-every", type=int, default=131_072, help="frames between validation evaluations")
     parser.add_argument("--estimate-every-s", type=float, default=1.0)
-    parser.add_argument("--update-threads", type=int, default=2)
+    parser.add_argument("--update-threads", type=int, default=1)
     parser.add_argument("--minibatch", type=int, default=PPOConfig.minibatch)
     parser.add_argument("--epochs", type=int, default=PPOConfig.epochs)
     parser.add_argument("--num-envs", type=int, default=PPOConfig.num_envs)
     parser.add_argument("--steps-per-env", type=int, default=PPOConfig.steps_per_env)
     parser.add_argument("--collect-workers", type=int, default=PPOConfig.collect_workers)
-    parser.add_argument("--background-eval", action="store_true", help="evaluate in a second process beside training")
+    parser.add_argument("--background-eval", action=argparse.BooleanOptionalAction, default=True,
+                        help="evaluate in a second process beside training (default; --no-background-eval: in this one)")
     parser.add_argument("--out", default=None, help="run directory (default: a new temporary folder)")
     args = parser.parse_args()
     torch.set_num_threads(1)

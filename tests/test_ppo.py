@@ -138,6 +138,18 @@ def test_background_evaluation_records_what_the_training_process_would_across_a_
     assert logs[True] == logs[False] and len(logs[True].splitlines()) == 4
 
 
+def test_the_recipes_evaluate_in_the_background_except_at_quick_scale():
+    from quadwind_trl.rl.cli import build_parser, quick_setup, recipe_ppo_config
+
+    parser = build_parser("horizontal", "")
+    assert recipe_ppo_config("horizontal", parser.parse_args([])).background_eval
+    assert not recipe_ppo_config("horizontal", parser.parse_args(["--no-background-eval"])).background_eval
+    quick = quick_setup("horizontal", hover_spec())[1]
+    assert not recipe_ppo_config("horizontal", parser.parse_args(["--quick"]), quick).background_eval
+    assert recipe_ppo_config("horizontal", parser.parse_args(["--quick", "--background-eval"]), quick).background_eval
+    assert not PPOConfig().background_eval  # the library's default: no process a script without a __main__ guard would re-run
+
+
 def test_a_failed_background_evaluation_stops_the_run_with_its_error(tmp_path):
     spec = hover_spec(duration_s=1.0)
     sc = _two_hover_validation_episodes()

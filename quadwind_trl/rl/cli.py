@@ -29,6 +29,11 @@ from .trainer import PPOTrainer, ResumeMismatch
 # A horizontal evaluation (45 episodes, 2,174 decisions) took 35-38 s after the first (which also
 # compiles and flies PD: ~150 s) on this 2-core machine
 DEFAULT_EVAL_EVERY = {"horizontal": 262_144, "vertical": 393_216}
+# the recipes evaluate in a second process while training goes on (PPOConfig.background_eval): they
+# train on one thread, so on a machine of two cores or more the evaluations stop costing wall time
+# (docs/benchmarks.md, "Time to a good policy": the same policy known 1.52x sooner). PPOConfig keeps
+# False for library use: a spawned process re-imports a script that lacks a __main__ guard
+DEFAULT_BACKGROUND_EVAL = True
 
 
 def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
@@ -58,9 +63,10 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--collect-workers", type=int, default=None,
                    help="collection processes, one single-threaded simulator per core, each stepping num_envs / W rows "
                         "(default 1; the rows fly the same episodes whatever W: a speed setting, which --resume may change)")
-    p.add_argument("--background-eval", action="store_true", default=None,
-                   help="fly the periodic evaluations in a second process while training goes on (the same metrics; "
-                        "a speed setting, which --resume may change)")
+    p.add_argument("--background-eval", action=argparse.BooleanOptionalAction, default=None,
+                   help="fly the periodic evaluations in a second process while training goes on (the same metrics and "
+                        f"kept policy; a speed setting, which --resume may change; default: {DEFAULT_BACKGROUND_EVAL}, "
+                        "except at --quick, whose one short evaluation costs less than starting that process)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--device", default="cpu", help="torch device of the simulator, estimator and networks (cpu, cuda, ...)")
     p.add_argument("--ema-tau-s", type=float, default=None,
@@ -123,6 +129,20 @@ def with_reward_w_z(config: EnvConfig, w_z: float | None) -> EnvConfig:
     return config if w_z is None else replace(config, reward=replace(config.reward, w_z=w_z))
 
 
+def recipe_ppo_config(regime: str, args: argparse.Namespace, base: PPOConfig | None = None) -> PPOConfig:
+    """The run's PPO settings: ``base`` (the ``--quick`` ones) or the recipe's defaults, with the
+    options given in ``args``; checked (``PPOConfig.validate``)."""
+    cfg = base or PPOConfig(eval_every_frames=DEFAULT_EVAL_EVERY[regime], background_eval=DEFAULT_BACKGROUND_EVAL)
+    overrides = {"seed": args.seed, "threads": args.threads}
+    for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
+                      ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
+                      ("reward_scaling", "reward_scaling"), ("collect_workers", "collect_workers"),
+                      ("background_eval", "background_eval")):
+        if getattr(args, arg) is not None:
+            overrides[name] = getattr(args, arg)
+    return replace(cfg, **overrides).validate()
+
+
 def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> dict:
     """Build the env spec, PPO config, evaluation set and (vertical) curriculum from ``args``;
     train; print and return the final manifest."""
@@ -135,22 +155,14 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
                          zero_inputs=input_channels(args.zero_inputs))
     except ValueError as err:  # a bad setting (e.g. --zero-inputs tilt): the message names the allowed values
         raise SystemExit(f"error: {err}") from None
+    quick_cfg = None
     if args.quick:
-        spec, cfg, changes = quick_setup(regime, spec)
+        spec, quick_cfg, changes = quick_setup(regime, spec)
         print("--quick changes from the full run:")
         for line in changes:
             print(f"  {line}")
-    else:
-        cfg = PPOConfig(eval_every_frames=DEFAULT_EVAL_EVERY[regime])
-    overrides = {"seed": args.seed, "threads": args.threads}
-    for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
-                      ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
-                      ("reward_scaling", "reward_scaling"), ("collect_workers", "collect_workers"),
-                      ("background_eval", "background_eval")):
-        if getattr(args, arg) is not None:
-            overrides[name] = getattr(args, arg)
     try:
-        cfg = replace(cfg, **overrides).validate()
+        cfg = recipe_ppo_config(regime, args, quick_cfg)
     except ValueError as err:  # e.g. --collect-workers 3 with 64 envs: the message names the field and the rule
         raise SystemExit(f"error: {err}") from None
     spec = replace(spec, num_envs=cfg.num_envs)
