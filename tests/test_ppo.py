@@ -138,6 +138,22 @@ def test_background_evaluation_records_what_the_training_process_would_across_a_
     assert logs[True] == logs[False] and len(logs[True].splitlines()) == 4
 
 
+def test_a_resumed_run_keeps_the_logged_evaluations_its_checkpoint_recorded(tmp_path):
+    """Resuming, the CSV logs keep training rows up to the checkpoint's frames and evaluation rows
+    up to its last recorded evaluation: one that arrived from the background after the checkpoint
+    was written (at 64 frames, of the snapshot at 64) is flown and logged again, so it is dropped."""
+    from quadwind_trl.rl.trainer import Progress
+
+    scalars = tmp_path / "run" / "logs" / "ppo" / "scalars"
+    for name, steps in (("train/reward_mean", (32, 64, 96)), ("eval/validation_score", (32, 64))):
+        (scalars / name).parent.mkdir(parents=True, exist_ok=True)
+        (scalars / f"{name}.csv").write_text("".join(f"{step},0.5\n" for step in steps))
+    trainer = PPOTrainer(hover_spec(), PPOConfig(), tmp_path / "run", progress=False)
+    trainer._make_logger(Progress(frames=64, evals=[{"frames": 32}]))
+    assert (scalars / "train" / "reward_mean.csv").read_text() == "32,0.5\n64,0.5\n"
+    assert (scalars / "eval" / "validation_score.csv").read_text() == "32,0.5\n"
+
+
 def test_the_recipes_evaluate_in_the_background_except_at_quick_scale():
     from quadwind_trl.rl.cli import build_parser, quick_setup, recipe_ppo_config
 
