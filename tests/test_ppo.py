@@ -120,7 +120,7 @@ def test_background_evaluation_records_what_the_training_process_would_across_a_
 
     runs = {}
     for background in (False, True):
-        cfg = PPOConfig(total_frames=4 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
+        cfg = PPOConfig(total_frames=3 * BATCH, num_envs=4, steps_per_env=STEPS, epochs=1, minibatch=MINIBATCH, hidden=(32, 32),
                         lr=3e-2, eval_every_frames=1, checkpoint_every_frames=1, background_eval=background)
         run = runs[background] = tmp_path / f"background_{background}"
         with pytest.raises(Interrupt):
@@ -130,12 +130,27 @@ def test_background_evaluation_records_what_the_training_process_would_across_a_
         PPOTrainer(spec, cfg, run, eval_scenarios=sc, progress=False).train(resume=True)
     manifests = {bg: json.loads((run / "policy.json").read_text()) for bg, run in runs.items()}
     evals = {bg: [{k: v for k, v in e.items() if k != "eval_s"} for e in m["evals"]] for bg, m in manifests.items()}
-    assert [e["frames"] for e in evals[True]] == [BATCH, 2 * BATCH, 3 * BATCH, 4 * BATCH]
+    assert [e["frames"] for e in evals[True]] == [BATCH, 2 * BATCH, 3 * BATCH]
     assert evals[True] == evals[False] and manifests[True]["selection"] == manifests[False]["selection"]
     kept = {bg: torch.load(run / "policy.pt", weights_only=True)["policy"] for bg, run in runs.items()}
     assert all(torch.equal(kept[True][k], kept[False][k]) for k in kept[False])
     logs = {bg: (run / "logs" / "ppo" / "scalars" / "eval" / "validation_score.csv").read_text() for bg, run in runs.items()}
-    assert logs[True] == logs[False] and len(logs[True].splitlines()) == 4
+    assert logs[True] == logs[False] and len(logs[True].splitlines()) == 3
+
+
+def test_an_evaluation_process_killed_from_outside_is_reported_not_waited_for():
+    from quadwind_trl.rl.envs import EnvFactory
+    from quadwind_trl.rl.evaluator import BackgroundEvaluator
+
+    cfg = PPOConfig(hidden=(32, 32))
+    evaluator = BackgroundEvaluator(EnvFactory(hover_spec()), _two_hover_validation_episodes(), cfg, seed=1)
+    try:
+        evaluator.submit(0, {"policy": build_actor_critic(cfg)[0].state_dict(), "vecnorm": {}}, None)
+        evaluator._process.kill()  # as the out-of-memory killer would
+        with pytest.raises(RuntimeError, match="background evaluation process died .* 1 evaluations in flight"):
+            evaluator.receive(wait=True)
+    finally:
+        evaluator.close()
 
 
 def test_a_resumed_run_keeps_the_logged_evaluations_its_checkpoint_recorded(tmp_path):

@@ -124,12 +124,15 @@ class BackgroundEvaluator:
             try:
                 kind, payload = self._results.get(block=wait, timeout=1.0 if wait else None)
             except queue.Empty:
-                if not wait:
-                    break
-                if not self._process.is_alive():
+                if self._process.is_alive():
+                    if not wait:
+                        break
+                    continue
+                try:  # what it wrote as it exited (its error), else it was killed (e.g. out of memory)
+                    kind, payload = self._results.get(timeout=1.0)
+                except queue.Empty:
                     raise RuntimeError(f"the background evaluation process died (exit code {self._process.exitcode}) "
                                        f"with {self.pending} evaluations in flight") from None
-                continue
             if kind == "error":
                 raise RuntimeError(f"background evaluation failed:\n{payload}")
             self.pending -= 1
