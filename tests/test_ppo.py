@@ -140,12 +140,12 @@ def test_background_evaluation_records_what_the_training_process_would_across_a_
 
 def test_an_evaluation_process_killed_from_outside_is_reported_not_waited_for():
     from quadwind_trl.rl.envs import EnvFactory
-    from quadwind_trl.rl.evaluator import BackgroundEvaluator
+    from quadwind_trl.rl.evaluator import BackgroundEvaluator, to_bytes
 
     cfg = PPOConfig(hidden=(32, 32))
     evaluator = BackgroundEvaluator(EnvFactory(hover_spec()), _two_hover_validation_episodes(), cfg, seed=1)
     try:
-        evaluator.submit(0, {"policy": build_actor_critic(cfg)[0].state_dict(), "vecnorm": {}}, None)
+        evaluator.submit(0, to_bytes({"policy": build_actor_critic(cfg)[0].state_dict(), "vecnorm": {}}), None)
         evaluator._process.kill()  # as the out-of-memory killer would
         with pytest.raises(RuntimeError, match="background evaluation process died .* 1 evaluations in flight"):
             evaluator.receive(wait=True)

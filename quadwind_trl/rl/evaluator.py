@@ -87,8 +87,9 @@ def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed:
         pd_eval = None
         while (job := jobs.get()) is not None:
             job = from_bytes(job)
-            actor.load_state_dict(job["policy"])
-            metrics, pd_eval = evaluate_against_pd(env, actor, job["vecnorm"], scenarios, job["pd_eval"] or pd_eval)
+            policy_file = from_bytes(job["policy_file"])
+            actor.load_state_dict(policy_file["policy"])
+            metrics, pd_eval = evaluate_against_pd(env, actor, policy_file["vecnorm"], scenarios, job["pd_eval"] or pd_eval)
             results.put(("done", to_bytes({"frames": job["frames"], "metrics": metrics, "pd_eval": pd_eval})))
         env.close()
     except BaseException:  # the parent raises it, with this traceback
@@ -109,11 +110,11 @@ class BackgroundEvaluator:
         self._process.start()
         self.pending = 0
 
-    def submit(self, frames: int, policy_file: dict, pd_eval: dict | None) -> None:
-        """Evaluate the snapshot ``policy_file`` (:func:`~quadwind_trl.rl.policy.policy_payload`:
-        the actor's weights and the normalisation), taken at ``frames``; ``pd_eval``: PD's results
-        when known (None: the child flies PD, once)."""
-        job = {"frames": frames, "policy": policy_file["policy"], "vecnorm": policy_file["vecnorm"], "pd_eval": pd_eval}
+    def submit(self, frames: int, policy_file: bytes, pd_eval: dict | None) -> None:
+        """Evaluate the snapshot ``policy_file`` (:func:`to_bytes` of a
+        :func:`~quadwind_trl.rl.policy.policy_payload`: the actor's weights and the normalisation),
+        taken at ``frames``; ``pd_eval``: PD's results when known (None: the child flies PD, once)."""
+        job = {"frames": frames, "policy_file": policy_file, "pd_eval": pd_eval}
         self._jobs.put(to_bytes(job))
         self.pending += 1
 

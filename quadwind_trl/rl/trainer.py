@@ -397,7 +397,7 @@ class PPOTrainer:
             self._record_evaluation(s, frames, iteration, policy, metrics)
         else:
             s.in_flight[frames] = (iteration, policy)
-            s.evaluator.submit(frames, from_bytes(policy), p.pd_eval)
+            s.evaluator.submit(frames, policy, p.pd_eval)
 
     def _receive_evaluations(self, s: _Session, wait: bool) -> None:
         """Record the background evaluations that have finished (with ``wait``: all of them)."""
