@@ -81,6 +81,9 @@ class VehicleConfig:
             )
 
 
+DISTURBANCE_MODELS = ("none", "wind_model", "observer")  # ControllerConfig.disturbance
+
+
 @dataclass(frozen=True)
 class ControllerConfig:
     """Flatness-based PD cascade (paper): the wind-blind baseline and the residual's base law.
@@ -98,11 +101,39 @@ class ControllerConfig:
     max_tilt_deg: float = 35.0  # paper, commanded-tilt limit
     pos_error_limit_m: tuple[float, float, float] = (12.0, 12.0, 15.0)  # paper
     feedback: Literal["truth", "sensors", "estimate"] = "estimate"
+    # The classical additions to the paper's PD (all off by default: the base law is the paper's
+    # PD, bit for bit). ``envs/controller.py`` gives the laws, ``BASE_CONTROLLERS`` the presets
+    # flown beside the RL and docs/simulator.md ("Classical base controllers") how they were tuned.
+    # Position-error integral gain (1/s^3); the integral is clamped to +-integral_limit_m_s and
+    # frozen on an axis while the tilt or thrust limit is active (conditional integration).
+    ki_pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    integral_limit_m_s: tuple[float, float, float] = (3.0, 3.0, 3.0)
+    # What the outer loop cancels as an external force: "none"; "wind_model" predicts the
+    # airframe's drag from a wind estimate (the env's input ``keys.BASE_WIND_KEY``) and its own
+    # velocity; "observer" estimates the force from the accelerometer and the applied thrust,
+    # low-pass filtered with time constant observer_tau_s.
+    disturbance: Literal["none", "wind_model", "observer"] = "none"
+    observer_tau_s: float = 0.3
+
+    @property
+    def needs_wind(self) -> bool:
+        """The law reads a wind estimate at every step (the env's ``BASE_WIND_KEY`` input)."""
+        return self.disturbance == "wind_model"
+
+    @property
+    def has_integral(self) -> bool:
+        return any(k != 0.0 for k in self.ki_pos)
 
     def validate(self) -> None:
         _check_range("ControllerConfig", "max_tilt_deg", self.max_tilt_deg, 1.0, 89.0)
         if self.feedback not in ("truth", "sensors", "estimate"):
             raise ValueError(f"ControllerConfig.feedback={self.feedback!r}; allowed: 'truth', 'sensors', 'estimate'")
+        for i, (ki, limit) in enumerate(zip(self.ki_pos, self.integral_limit_m_s)):
+            _check_range("ControllerConfig", f"ki_pos[{i}]", ki, 0.0, 50.0)
+            _check_range("ControllerConfig", f"integral_limit_m_s[{i}]", limit, 0.0, 100.0)
+        if self.disturbance not in DISTURBANCE_MODELS:
+            raise ValueError(f"ControllerConfig.disturbance={self.disturbance!r}; allowed: {DISTURBANCE_MODELS}")
+        _check_range("ControllerConfig", "observer_tau_s", self.observer_tau_s, 0.01, 10.0)
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,9 @@ WIND_KEY = "wind_hat"
 OBSERVATION_KEY = "observation"
 #: the true turbulence-free mean wind at the vehicle (ENU), the oracle's source
 MEAN_WIND_KEY = ("truth", "mean_wind")
+#: (north, east) wind estimate, m/s, that a wind feed-forward base controller flies on: an input
+#: of the env's step (its ``state_spec``), written by ``transforms.BaseWindInput``
+BASE_WIND_KEY = "base_wind_ne"
 #: bool [1]: the runtime monitor held the residual at zero over the last control step (an env
 #: observation entry only while ``ResidualConfig.monitor`` is on)
 MONITOR_KEY = "monitor_active"

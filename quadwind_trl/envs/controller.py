@@ -17,7 +17,33 @@ the inertia, the cascade with these gains would be only marginally stable)::
     tau = -K_R e_R - K_w e_w + w x J w
 
 with ``w_des`` from differential flatness: the reference jerk and yaw rate (Mellinger & Kumar
-2011). Nothing here knows the wind.
+2011).
+
+The base controller (:class:`BaseController`, the law the residual policy's action is added to)
+is this cascade with up to two classical additions to its outer loop, each a config setting of
+:class:`~quadwind_trl.config.ControllerConfig` and off by default (the paper's PD, bit for bit):
+
+* **integral action** (``ki_pos``): ``a_des -= Ki I`` with ``I = integral(e_p dt)``, clamped to
+  ``+-integral_limit_m_s`` and frozen on the horizontal axes while the tilt limit is active and
+  on the vertical one while the thrust limit is, reset at episode start and held before the
+  motors arm: the structure of the PX4 multicopter position and velocity controller
+  (PX4 Autopilot, ``mc_pos_control``, PositionControl.cpp: conditional integration);
+* **disturbance cancellation** (``disturbance``): ``a_des -= F_hat / m`` for an estimated
+  external force ``F_hat`` (world frame), either
+
+  - ``"wind_model"``: wind feed-forward, the drag the airframe's own quadratic drag model
+    predicts for the air-relative velocity ``v - w_hat`` (``w_hat`` a wind estimate given to the
+    step, vertical part zero): with the true model and the true steady wind it cancels the
+    wind's force exactly; or
+  - ``"observer"``: an acceleration-based disturbance observer in the style of incremental
+    nonlinear dynamic inversion (Smeur, Chu & de Croon 2016, J. Guid. Control Dyn. 39(3);
+    Tal & Karaman 2021, IEEE T-CST 29(3)): the accelerometer's specific force ``f`` (body) and
+    the thrust the rotors are modelled to give (the applied command through the motors'
+    first-order lag) give ``F_raw = R (m f - T e3)``, low-pass filtered with time constant
+    ``observer_tau_s``.
+
+The law's state (the integral, the observer's force and modelled thrust) lives in the
+simulator's state TensorDict (``state["base"]``); nothing here holds state between calls.
 """
 from __future__ import annotations
 
@@ -27,8 +53,14 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from typing import Protocol
+
+from tensordict import TensorDict
+
 from ..config import GRAVITY_M_S2, ControllerConfig, VehicleConfig
 from .rotations import matmul, matvec, vee
+from .trajectories.library import Reference
+from .vehicle import drag_force_body
 
 
 @dataclass
@@ -65,6 +97,37 @@ class ControllerParams:
 
 
 @dataclass
+class ClassicalParams:
+    """Tensor constants of the outer-loop additions (:class:`ControllerConfig`), for one control step ``dt``."""
+
+    ki: Tensor | None  # [3] 1/s^3; None: no integral action
+    integral_limit: Tensor  # [3] m s
+    disturbance: str  # ControllerConfig.disturbance
+    drag_half_rho_cda: Tensor  # [3] the airframe's drag model, 1/2 rho CdA per body axis
+    observer_gain: float  # 1 - exp(-dt / observer_tau_s): the force filter's step gain
+    motor_gain: float  # 1 - exp(-dt / motor_time_constant_s): the modelled thrust's step gain
+    mass: float
+    dt: float
+
+    @classmethod
+    def from_config(cls, cfg: ControllerConfig, vehicle: VehicleConfig, dt_s: float,
+                    device: torch.device | str | None = None) -> "ClassicalParams":
+        cfg.validate()
+        t = lambda v: torch.tensor(v, dtype=torch.float32, device=device)  # noqa: E731
+        return cls(
+            ki=t(cfg.ki_pos) if cfg.has_integral else None,
+            integral_limit=t(cfg.integral_limit_m_s),
+            disturbance=cfg.disturbance,
+            drag_half_rho_cda=0.5 * vehicle.air_density_kg_m3 * t(
+                (vehicle.drag_area_xy_m2, vehicle.drag_area_xy_m2, vehicle.drag_area_z_m2)),
+            observer_gain=-math.expm1(-dt_s / cfg.observer_tau_s),
+            motor_gain=-math.expm1(-dt_s / vehicle.motor_time_constant_s),
+            mass=vehicle.mass_kg,
+            dt=dt_s,
+        )
+
+
+@dataclass
 class PDOutput:
     wrench: Tensor  # [N, 4] collective thrust (N) and body torques (N m)
     tilt_cmd: Tensor  # [N, 1] commanded tilt from vertical (rad), after the limit
@@ -83,11 +146,15 @@ def pd_control(
     ref_yaw: Tensor,
     ref_yaw_rate: Tensor,
     p: ControllerParams,
+    acc_extra: Tensor | None = None,
 ) -> PDOutput:
     """The PD wrench for a batch; ``rot`` is the body-to-world rotation matrix ``[N, 3, 3]``,
-    ``ref_yaw`` and ``ref_yaw_rate`` are ``[N, 1]``."""
+    ``ref_yaw`` and ``ref_yaw_rate`` are ``[N, 1]``; ``acc_extra`` ``[N, 3]`` (m/s^2, world) is
+    added to the outer loop's desired acceleration before the tilt limit (None: the paper's PD)."""
     pos_err = torch.maximum(torch.minimum(pos - ref_pos, p.pos_error_limit), -p.pos_error_limit)
     acc_des = -p.kp * pos_err - p.kd * (vel - ref_vel) + ref_acc
+    if acc_extra is not None:  # a config constant: the PD alone runs exactly the paper's ops
+        acc_des = acc_des + acc_extra
     acc_z = (acc_des[..., 2:] + GRAVITY_M_S2).clamp_min(0.05 * GRAVITY_M_S2)
     horiz = acc_des[..., :2]
     horiz_norm = horiz.norm(dim=-1, keepdim=True)
@@ -123,3 +190,110 @@ def pd_control(
 
     tilt_cmd = torch.acos((b3_des[..., 2:]).clamp(-1.0, 1.0))
     return PDOutput(torch.cat((thrust, torque), -1), tilt_cmd, tilt_saturated)
+
+
+@dataclass
+class ControlInputs:
+    """What a base controller reads at one control instant (batch ``[N]``; world ENU, body FLU)."""
+
+    pos: Tensor  # [N, 3] m: the navigation solution it flies on
+    vel: Tensor  # [N, 3] m/s
+    rot: Tensor  # [N, 3, 3] body-to-world, from the measured (or true) attitude
+    omega: Tensor  # [N, 3] rad/s, body
+    ref: Reference
+    specific_force: Tensor  # [N, 3] m/s^2, body: the accelerometer's reading
+    thrust_applied: Tensor  # [N, 1] N: the collective thrust commanded over the last control step
+    wind_ne: Tensor | None  # [N, 2] m/s (north, east): the wind estimate given to the step, if any
+    armed: Tensor  # [N, 1] bool: the motors are armed (the integral and the observer's force advance)
+    first: bool  # an episode's first instant: nothing has been applied yet, the state stays as it starts
+
+
+class BaseController(Protocol):
+    """The law the residual policy's action is added to: a pure batched function of its inputs
+    and its own state (a TensorDict of batch ``[N]`` kept in the simulator's ``state["base"]``,
+    or None for a stateless law)."""
+
+    needs_wind: bool  # it reads ControlInputs.wind_ne (the env then takes keys.BASE_WIND_KEY as an input)
+
+    def init_state(self, n: int, device: torch.device) -> TensorDict | None:
+        """The law's state at an episode's start."""
+
+    def __call__(self, inputs: ControlInputs, state: TensorDict | None) -> tuple[PDOutput, TensorDict | None]:
+        """The wrench now and the law's state for the next instant."""
+
+
+class CascadeController:
+    """The paper's PD cascade with the classical additions its config switches on (module
+    docstring): the base controller of every env."""
+
+    def __init__(self, pd: ControllerParams, extra: ClassicalParams):
+        self.pd, self.extra = pd, extra
+        self.needs_wind = extra.disturbance == "wind_model"
+        self._observer = extra.disturbance == "observer"
+
+    def init_state(self, n: int, device: torch.device) -> TensorDict | None:
+        state = {}
+        if self.extra.ki is not None:
+            state["integral"] = torch.zeros(n, 3, device=device)
+        if self._observer:
+            state["force_hat"] = torch.zeros(n, 3, device=device)
+            # the hover thrust: an airborne start has been hovering; on the ground the motors are
+            # off until arming and the modelled thrust decays to zero long before
+            state["thrust_hat"] = torch.full((n, 1), self.pd.mass * GRAVITY_M_S2, device=device)
+        return TensorDict(state, batch_size=[n]) if state else None
+
+    def __call__(self, inputs: ControlInputs, state: TensorDict | None) -> tuple[PDOutput, TensorDict | None]:
+        x, ex = inputs, self.extra
+        acc_extra = None
+        if ex.ki is not None:
+            acc_extra = -ex.ki * state["integral"]
+        force = self._external_force(x, state)
+        if force is not None:
+            cancel = force / ex.mass
+            acc_extra = -cancel if acc_extra is None else acc_extra - cancel
+        r = x.ref
+        out = pd_control(x.pos, x.vel, x.rot, x.omega, r.pos, r.vel, r.acc, r.jerk, r.yaw, r.yaw_rate, self.pd, acc_extra)
+        if state is None or x.first:
+            return out, state
+        return out, self._next_state(x, state, out)
+
+    def _external_force(self, x: ControlInputs, state: TensorDict | None) -> Tensor | None:
+        """``[N, 3]`` N, world: the force the outer loop cancels (None: none)."""
+        if self.needs_wind:
+            if x.wind_ne is None:
+                raise ValueError("ControllerConfig.disturbance='wind_model' needs a wind estimate: give the env "
+                                 "keys.BASE_WIND_KEY (transforms.BaseWindInput does)")
+            wind = torch.cat((x.wind_ne[..., 1:2], x.wind_ne[..., 0:1], torch.zeros_like(x.wind_ne[..., :1])), -1)
+            air_rel_body = matvec(x.rot.transpose(-1, -2), x.vel - wind)
+            return matvec(x.rot, drag_force_body(air_rel_body, self.extra.drag_half_rho_cda))
+        if self._observer:
+            return state["force_hat"]
+        return None
+
+    def _next_state(self, x: ControlInputs, state: TensorDict, out: PDOutput) -> TensorDict:
+        ex, new = self.extra, {}
+        if ex.ki is not None:
+            pos_err = torch.maximum(torch.minimum(x.pos - x.ref.pos, self.pd.pos_error_limit), -self.pd.pos_error_limit)
+            integral = torch.maximum(torch.minimum(state["integral"] + pos_err * ex.dt, ex.integral_limit), -ex.integral_limit)
+            thrust = out.wrench[..., :1]
+            thrust_saturated = (thrust <= self.pd.thrust_min) | (thrust >= self.pd.thrust_max)
+            # conditional integration: an axis whose actuator limit is active does not wind up
+            frozen = torch.cat((out.tilt_saturated, out.tilt_saturated, thrust_saturated), -1)
+            new["integral"] = torch.where(frozen | ~x.armed, state["integral"], integral)
+        if self._observer:
+            thrust_hat = state["thrust_hat"] + ex.motor_gain * (x.thrust_applied - state["thrust_hat"])
+            body = ex.mass * x.specific_force - torch.cat((torch.zeros_like(thrust_hat), torch.zeros_like(thrust_hat),
+                                                           thrust_hat), -1)
+            raw = matvec(x.rot, body)
+            force_hat = state["force_hat"] + ex.observer_gain * (raw - state["force_hat"])
+            # on the ground before arming the accelerometer reads the ground's reaction: no estimate
+            new["force_hat"] = torch.where(x.armed, force_hat, state["force_hat"])
+            new["thrust_hat"] = thrust_hat
+        return TensorDict(new, batch_size=state.batch_size)
+
+
+def make_base_controller(cfg: ControllerConfig, vehicle: VehicleConfig, dt_s: float,
+                         device: torch.device | str | None = None) -> CascadeController:
+    """The base controller a config chooses (:class:`CascadeController` with its additions)."""
+    return CascadeController(ControllerParams.from_config(cfg, vehicle, device),
+                             ClassicalParams.from_config(cfg, vehicle, dt_s, device))

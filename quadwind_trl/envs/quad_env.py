@@ -10,10 +10,11 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
-from ..keys import MEAS_KEY, MONITOR_KEY
+from ..keys import BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY
 from ..validation import check_action
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
+from .controller import BaseController
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
 from .trajectories import HORIZONTAL, trajectory_ids
@@ -95,8 +96,12 @@ class QuadWindEnv(EnvBase):
     """A batch of quadrotors flying reference trajectories through wind and turbulence.
 
     The action is the residual wrench in ``[-1, 1]^4`` (collective thrust, roll, pitch, yaw
-    torques), scaled, smoothed, slew-limited and added to the PD cascade's output: ``action = 0``
-    is the PD baseline. One step is ``TimingConfig.hold_control_steps`` 10 ms control steps (5
+    torques), scaled, smoothed, slew-limited and added to the base controller's output
+    (``ControllerConfig``: the paper's PD cascade by default, or PID, wind feed-forward or a
+    disturbance observer; :mod:`quadwind_trl.envs.controller`): ``action = 0`` is the base law.
+    A wind feed-forward base law also takes ``base_wind_ne`` [2] (north, east, m/s;
+    :data:`~quadwind_trl.keys.BASE_WIND_KEY`) as an input of every step, beside the action
+    (``transforms.BaseWindInput`` gives it from the wind estimate). One step is ``TimingConfig.hold_control_steps`` 10 ms control steps (5
     physics substeps each) under the same action; the reward is the task's (default
     :class:`~quadwind_trl.envs.task.TrackingTask`: Eq. (2)) averaged over them.
 
@@ -145,6 +150,7 @@ class QuadWindEnv(EnvBase):
         compile_step: bool = False,
         task: Task | None = None,
         first_row: int = 0,
+        controller: BaseController | None = None,
     ):
         batch_size = torch.Size(batch_size)
         if len(batch_size) != 1 or batch_size[0] < 1:
@@ -156,7 +162,7 @@ class QuadWindEnv(EnvBase):
         self._first_row = int(first_row)
         super().__init__(device=device if device is not None else "cpu", batch_size=batch_size)
         self.config = (config or EnvConfig()).validate()
-        self.sim = QuadSimulator(self.config, self.device)
+        self.sim = QuadSimulator(self.config, self.device, controller=controller)
         self.scenario_sampler = scenario_sampler or ScenarioSampler()
         if task is not None:
             missing = [m for m in ("step_reward", "done", "decision_reward") if not callable(getattr(task, m, None))]
@@ -184,6 +190,8 @@ class QuadWindEnv(EnvBase):
             spec[MONITOR_KEY] = Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)
         self.observation_spec = spec
         self.action_spec = Bounded(low=-1.0, high=1.0, shape=(n, 4), device=dev)
+        if self.sim.controller.needs_wind:
+            self.state_spec = Composite({BASE_WIND_KEY: _vec(n, 2, dev)}, shape=(n,), device=dev)
         self.reward_spec = Unbounded(shape=(n, 1), device=dev)
         flag = lambda: Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)  # noqa: E731
         self.done_spec = Composite(done=flag(), terminated=flag(), truncated=flag(), shape=(n,), device=dev)
@@ -219,7 +227,8 @@ class QuadWindEnv(EnvBase):
         out.update(self.full_done_spec.zero())
         return out
 
-    def _held_control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor, reward: torch.Tensor,
+    def _held_control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor,
+                           wind_ne: torch.Tensor | None, reward: torch.Tensor,
                            steps: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor):
         """One control step of a held action, with the task's view of it, merged branch-free into
         the decision's running totals ``(state, reward sum, steps, terminated, truncated)``: a row
@@ -227,7 +236,7 @@ class QuadWindEnv(EnvBase):
         function so that, compiled, they are one graph (no eager merge of every state leaf per
         control step); the params do not change within an episode and are not merged."""
         running = ~(terminated | truncated)
-        new = self.sim.step(params, state, action)
+        new = self.sim.step(params, state, action, wind_ne)
         new_terminated, new_truncated = self.task.done(params, new)
         new_reward = self.task.step_reward(params, state, new)
         return (
@@ -242,6 +251,13 @@ class QuadWindEnv(EnvBase):
         action = tensordict.get("action", None)
         check_action(action, self.batch_size[0], 4)
         n, dev = self.batch_size[0], self.device
+        wind_ne = None
+        if self.sim.controller.needs_wind:
+            wind_ne = tensordict.get(BASE_WIND_KEY, None)
+            if wind_ne is None:
+                raise KeyError(f"this env's base controller flies on a wind estimate: the step's input needs "
+                               f"{BASE_WIND_KEY!r} [N, 2] (north, east, m/s) beside the action "
+                               "(transforms.BaseWindInput writes it from the wind estimate)")
         state = self.state
         reward = torch.zeros(n, 1, device=dev)
         steps = torch.zeros(n, 1, device=dev)
@@ -249,7 +265,7 @@ class QuadWindEnv(EnvBase):
         truncated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         for _ in range(self.config.timing.hold_control_steps):
             state, reward, steps, terminated, truncated = self._advance(
-                self.params, state, action, reward, steps, terminated, truncated)
+                self.params, state, action, wind_ne, reward, steps, terminated, truncated)
         self.state = state
         out = self._observation(state)
         out.set("reward", self.task.decision_reward(reward / steps, terminated))

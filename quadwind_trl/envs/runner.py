@@ -17,9 +17,11 @@ from torchrl.envs import EnvBase
 from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm.auto import tqdm
 
+from ..config import EnvConfig
 from ..keys import MEAS_KEY
 from .quad_env import QuadWindEnv
 from .scenarios import validate_scenarios
+from .simulator import trajectory_library
 
 NestedKey = str | tuple[str, ...]
 Policy = Callable[[TensorDictBase], TensorDictBase]
@@ -76,6 +78,20 @@ def _base(env: EnvBase) -> QuadWindEnv:
     return base
 
 
+def flight_order(config: EnvConfig, scenarios: TensorDictBase, device: torch.device | str = "cpu") -> tuple[Tensor, Tensor]:
+    """``(order, planned)``: the scenario rows in the order the runner flies them in an env of
+    ``config`` (longest first, ties in scenario order; batch ``k`` of an env of ``N`` rows is
+    ``order[k N : (k + 1) N]``) and each scenario's planned control steps."""
+    log_every = config.timing.log_every_control_steps
+    traj = trajectory_library(config, torch.device(device))
+    pattern_start, end_step = traj.schedule(scenarios["traj_id"].to(device), scenarios["altitude_m"].to(device))
+    start = torch.where(scenarios["start_step"].to(device) < 0, pattern_start, scenarios["start_step"].to(device))
+    if bool((start % log_every).any()):
+        raise ValueError(f"scenario start_step must be a multiple of the {log_every}-step log interval")
+    planned = (end_step - start).cpu()
+    return torch.argsort(planned, descending=True, stable=True), planned
+
+
 def iter_flights(
     env: EnvBase,
     scenarios: TensorDictBase,
@@ -102,13 +118,7 @@ def iter_flights(
     validate_scenarios(scenarios)
     n_env = base.batch_size[0]
     log_every = base.config.timing.log_every_control_steps
-    traj = base.sim.trajectories
-    pattern_start, end_step = traj.schedule(scenarios["traj_id"].to(base.device), scenarios["altitude_m"].to(base.device))
-    start = torch.where(scenarios["start_step"].to(base.device) < 0, pattern_start, scenarios["start_step"].to(base.device))
-    if bool((start % log_every).any()):
-        raise ValueError(f"scenario start_step must be a multiple of the {log_every}-step log interval")
-    planned = (end_step - start).cpu()
-    order = torch.argsort(planned, descending=True, stable=True)
+    order, planned = flight_order(base.config, scenarios, base.device)
     batches = order.split(n_env)
     # progress=None: a bar only once the work has taken a few seconds (quick calls stay quiet)
     bar = tqdm(total=int(planned.sum()), unit="step", unit_scale=True, disable=progress is False, desc="flights",

@@ -14,11 +14,14 @@ mode phases and amplitudes or cube) and the sensor noise seed (``params["sensors
   ``meas``, a sub-tensordict of named entries (``gps_pos``, ..., :data:`~.sensors.INSTRUMENTS`);
 * ``nav``: the navigation solution the PD flies on (``pos``, ``vel``, ``baro_offset``);
 * ``ref``: the reference (``pos``, ``vel``, ``acc``, ``yaw``);
-* ``control``: the PD output (``pd_wrench``, ``tilt_cmd``, ``tilt_saturated``), the residual
-  ``ff`` and the total command ``cmd``; with the runtime monitor on (``ResidualConfig.monitor``),
-  also ``monitor_left``: its steps left of PD alone (:mod:`~quadwind_trl.envs.monitor`).
+* ``control``: the base controller's output (``pd_wrench``, ``tilt_cmd``, ``tilt_saturated``),
+  the residual ``ff`` and the total command ``cmd``; with the runtime monitor on
+  (``ResidualConfig.monitor``), also ``monitor_left``: its steps left of the base law alone
+  (:mod:`~quadwind_trl.envs.monitor`);
+* ``base`` (only for a base controller with state, e.g. integral action or a disturbance
+  observer): the law's own state (:mod:`~quadwind_trl.envs.controller`).
 
-:class:`QuadSimulator` composes the vehicle, the PD cascade, the trajectory library, the
+:class:`QuadSimulator` composes the vehicle, the base controller, the trajectory library, the
 atmosphere and the sensors. Its methods are pure (in, out), so the TorchRL env, the PD-only
 runner and ``torch.compile`` all drive exactly the same code. Reward and termination are the
 task's (:mod:`quadwind_trl.envs.task`), not the physics'.
@@ -41,7 +44,7 @@ from torch import Tensor
 from ..config import GRAVITY_M_S2, EnvConfig
 from ..keys import MEAS_KEY
 from .atmosphere import Atmosphere
-from .controller import ControllerParams, pd_control
+from .controller import BaseController, ControlInputs, make_base_controller
 from .monitor import MonitorParams, monitor_gate
 from .navigation import NavigationParams, init_navigation, update_navigation
 from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
@@ -66,12 +69,17 @@ def trajectory_library(cfg: EnvConfig, device: torch.device) -> TrajectoryLibrar
 
 
 class QuadSimulator:
-    def __init__(self, cfg: EnvConfig | None = None, device: torch.device | str | None = None):
+    """The simulator of ``cfg`` on ``device``; ``controller`` replaces the base controller the
+    config chooses (:func:`~quadwind_trl.envs.controller.make_base_controller`) by a user's own
+    :class:`~quadwind_trl.envs.controller.BaseController`."""
+
+    def __init__(self, cfg: EnvConfig | None = None, device: torch.device | str | None = None,
+                 controller: BaseController | None = None):
         self.cfg = (cfg or EnvConfig()).validate()
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         c, dev = self.cfg, self.device
         self.vehicle = VehicleParams.from_config(c.vehicle, dev)
-        self.controller = ControllerParams.from_config(c.controller, c.vehicle, dev)
+        self.controller = controller or make_base_controller(c.controller, c.vehicle, c.timing.control_dt_s, dev)
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
         self.sensors = SensorSuite(c.sensors, c.timing.control_dt_s, dev)
@@ -118,8 +126,12 @@ class QuadSimulator:
                              batch_size=[n])
         if self.monitor is not None:  # a config constant: with the monitor off the state is as before it existed
             control["monitor_left"] = torch.zeros(n, 1, dtype=torch.int64, device=self.device)
-        state = TensorDict(step=step, body=body, wind=wind_state, sensors=sensor_state, control=control, batch_size=[n])
-        state = self._observe_instant(params, state, first=True)
+        base = self.controller.init_state(n, self.device)
+        state = TensorDict(step=step, body=body, wind=wind_state, sensors=sensor_state, control=control,
+                           **({} if base is None else {"base": base}), batch_size=[n])
+        # a wind feed-forward law knows no wind at an episode's first instant: the estimate comes with the first step
+        no_wind = torch.zeros(n, 2, device=self.device) if self.controller.needs_wind else None
+        state = self._observe_instant(params, state, first=True, wind_ne=no_wind)
         # the keys in the order :meth:`step` returns them: a compiled step is guarded on the order
         # of its input's keys, and a start in another order cost every env a second compilation
         state["finite"] = torch.ones(n, 1, dtype=torch.bool, device=self.device)
@@ -143,8 +155,10 @@ class QuadSimulator:
 
     # --- one control step ---------------------------------------------------------------------
 
-    def step(self, params: TensorDict, state: TensorDict, action: Tensor) -> TensorDict:
-        """The state one control step on, every row under residual ``action`` in ``[-1, 1]^4``."""
+    def step(self, params: TensorDict, state: TensorDict, action: Tensor, wind_ne: Tensor | None = None) -> TensorDict:
+        """The state one control step on, every row under residual ``action`` in ``[-1, 1]^4``;
+        ``wind_ne`` ``[N, 2]`` (north, east, m/s): the wind estimate a wind feed-forward base
+        controller flies the next instant's law on (held over the step, as the action is)."""
         r = self.cfg.residual
         ff_prev = state["control", "ff"]
         target = action.clamp(-1.0, 1.0) * self.action_scale
@@ -174,10 +188,12 @@ class QuadSimulator:
             wind=state["wind"],
             sensors=state["sensors"],
             control=TensorDict(ff=ff, cmd=cmd, **monitor, batch_size=n),  # initial()'s key order
+            **({"base": state["base"]} if "base" in state.keys() else {}),
             nav=state["nav"],
             batch_size=n,
         )
-        new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, 1) if imu_sub else None)
+        new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, 1) if imu_sub else None,
+                                    wind_ne=wind_ne)
         b = new["body"]
         finite = torch.stack([torch.isfinite(b[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
         new["finite"] = finite
@@ -196,11 +212,12 @@ class QuadSimulator:
     # --- what the vehicle and the world look like at one instant --------------------------------
 
     def _observe_instant(
-        self, params: TensorDict, state: TensorDict, first: bool, imu_truth_sub: TensorDict | None = None
+        self, params: TensorDict, state: TensorDict, first: bool, imu_truth_sub: TensorDict | None = None,
+        wind_ne: Tensor | None = None,
     ) -> TensorDict:
-        """``state`` completed with the wind, reference, sensors, navigation and the PD wrench at
-        its current step (``imu_truth_sub``: the IMU's true inputs at its samples inside the step
-        just flown)."""
+        """``state`` completed with the wind, reference, sensors, navigation and the base
+        controller's wrench at its current step (``imu_truth_sub``: the IMU's true inputs at its
+        samples inside the step just flown; ``wind_ne``: the base law's wind estimate)."""
         body, step, sc = state["body"], state["step"], params["scenario"]
         pos = body["pos"]
         mean, total, wind_state = self.atmosphere.sample(params["wind"], state["wind"], pos, self.control_dt)
@@ -232,8 +249,10 @@ class QuadSimulator:
                     self.control_dt,
                 )
             nav_rot, nav_omega = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1))), meas["gyro"]
-        pd = pd_control(nav["pos"], nav["vel"], nav_rot, nav_omega, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw,
-                        ref.yaw_rate, self.controller)
+        inputs = ControlInputs(pos=nav["pos"], vel=nav["vel"], rot=nav_rot, omega=nav_omega, ref=ref,
+                               specific_force=meas["accel"], thrust_applied=state["control", "cmd"][..., :1],
+                               wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first)
+        pd, base = self.controller(inputs, state.get("base", None))
 
         out = state.clone(recurse=False)
         wind_state.update(dict(mean=mean, total=total))
@@ -243,6 +262,8 @@ class QuadSimulator:
         control = out["control"].clone(recurse=False)
         control.update(dict(pd_wrench=pd.wrench, tilt_cmd=pd.tilt_cmd, tilt_saturated=pd.tilt_saturated))
         out["control"] = control
+        if base is not None:
+            out["base"] = base
         return out
 
 
@@ -270,6 +291,8 @@ def _sanitize(state: TensorDict, broken: Tensor) -> TensorDict:
     out = state.clone(recurse=False)
     out["body"] = body.clone(recurse=False).update({k: torch.where(broken, v, body[k]) for k, v in fixes.items()})
     zeroed = {"sensors": (MEAS_KEY,), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
+    if "base" in state.keys():  # the base law's state restarts from zero in a parked row
+        zeroed["base"] = tuple(state["base"].keys())
 
     def zero(v: Tensor) -> Tensor:
         return torch.where(broken, 0.0, v.nan_to_num())

@@ -8,6 +8,8 @@ Stack (``env.transform[i]``)::
 
     0 EpisodeControl      first-episode de-synchronisation / truncation on request (training)
     1 WindEstimate        wind_hat: estimate (frozen net + EMA) | truth (oracle)
+    . BaseWindInput       (a wind feed-forward base controller only) base_wind_ne, the base law's
+                          step input: the estimate, the true mean wind or zero (base_wind_input)
     2 PolicyObservation   observation [23]
     3 RunningObsNorm      (VecNormV2) running mean/var of observation, reduce_batch_dims=True, decay=1.0
     4 ClipTransform       observation clipped to [-obs_clip, obs_clip] after normalisation
@@ -45,6 +47,7 @@ from torchrl.envs import (ClipTransform, Compose, ParallelEnv, RemoveEmptySpecs,
                           VecNormV2)
 
 from ..config import EnvConfig
+from ..envs.controller import BaseController
 from ..envs.parallel import QuietParallelEnv
 from ..envs.quad_env import QuadWindEnv, ScenarioSampler
 from ..envs.scenarios import RegimeRanges
@@ -52,7 +55,7 @@ from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
 from ..keys import OBSERVATION_CHANNELS, OBSERVATION_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
-from ..transforms import EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, ZeroInputs
+from ..transforms import BaseWindInput, EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, ZeroInputs
 from ..transforms.wind import estimate_stride
 
 T = TypeVar("T")
@@ -102,6 +105,10 @@ class RLEnvSpec:
     # clipping, in training and in every flight of the policy: a policy trained without them. The
     # wind channels are not among them: wind_input="zero" removes those
     zero_inputs: tuple[str, ...] = ()
+    # what a wind feed-forward base controller (ControllerConfig.disturbance="wind_model") flies
+    # on: "estimate" (the estimator's filtered output, wind_hat), "truth" (the true mean wind: the
+    # oracle) or "zero" (its blind twin); unused by every other base controller
+    base_wind_input: WindInput = "estimate"
 
     def __post_init__(self):
         check_regime(self.regime)
@@ -112,6 +119,12 @@ class RLEnvSpec:
         if not self.ema_tau_s >= 0:
             raise ValueError(f"RLEnvSpec.ema_tau_s={self.ema_tau_s!r} s; allowed: >= 0 (0: unfiltered)")
         estimate_stride(self.estimate_every_s, self.env_config.timing.log_dt_s, "RLEnvSpec.estimate_every_s")
+        if self.base_wind_input not in WIND_INPUTS:
+            raise ValueError(f"RLEnvSpec.base_wind_input={self.base_wind_input!r}; allowed: {WIND_INPUTS}")
+        if self.env_config.controller.needs_wind and self.base_wind_input == "estimate" and self.wind_input == "truth":
+            raise ValueError("RLEnvSpec.base_wind_input='estimate' with wind_input='truth': the env runs no estimator "
+                             "then (the policy reads the true wind); give the base law the truth too, or the policy "
+                             "the estimate")
         if self.desync_steps < 0:
             raise ValueError(f"RLEnvSpec.desync_steps={self.desync_steps}; allowed: >= 0")
         self._check_zero_inputs()
@@ -153,10 +166,12 @@ def _row_transforms(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slic
     may run in a collection worker that holds ``rows`` of the batch (None: all of them)."""
     cfg = spec.env_config
     source = "truth" if spec.wind_input == "truth" else "estimate"
+    base_wind = [BaseWindInput(spec.base_wind_input)] if cfg.controller.needs_wind else []
     return [
         EpisodeControl(spec.desync_steps, seed=spec.seed, align=cfg.timing.decisions_per_log, rows=rows),
         WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg,
                      every_s=spec.estimate_every_s),
+        *base_wind,
         PolicyObservation(cfg),
     ]
 
@@ -172,7 +187,7 @@ def _batch_transforms(spec: RLEnvSpec) -> list[Transform]:
     return transforms + [RewardSum(in_keys=["reward"], out_keys=["episode_reward"], reset_keys=["_reset"]), StepCounter()]
 
 
-def _base_env(spec: RLEnvSpec, rows: slice | None = None) -> QuadWindEnv:
+def _base_env(spec: RLEnvSpec, rows: slice | None = None, controller: BaseController | None = None) -> QuadWindEnv:
     sampler = ScenarioSampler(
         ranges=spec.ranges if spec.ranges is not None else DEFAULT_RANGES[spec.regime],
         trajectories=tuple(spec.trajectories) if spec.trajectories is not None else DEFAULT_TRAJECTORIES[spec.regime],
@@ -180,7 +195,7 @@ def _base_env(spec: RLEnvSpec, rows: slice | None = None) -> QuadWindEnv:
     )
     rows = rows or slice(0, spec.num_envs)
     return QuadWindEnv(spec.env_config, batch_size=[rows.stop - rows.start], device=spec.device, scenario_sampler=sampler,
-                       seed=spec.seed, compile_step=spec.compile_step, first_row=rows.start)
+                       seed=spec.seed, compile_step=spec.compile_step, first_row=rows.start, controller=controller)
 
 
 class RowWorkerEnv(TransformedEnv):
@@ -210,6 +225,7 @@ def build_env(
     vecnorm_state: dict | None = None,
     freeze_norm: bool | None = None,
     workers: int = 1,
+    controller: BaseController | None = None,
 ) -> TransformedEnv:
     """The transformed env of ``spec`` (see the module docstring for the stack).
 
@@ -224,7 +240,12 @@ def build_env(
             normalisation pools every row); the batch is ``[workers, num_envs / workers]`` and
             its rows fly exactly the episodes of the one-process env. The workers return what the
             policy and the trainer read: the observation, the reward and the done flags.
+        controller: a base controller object instead of the one the config chooses (one process
+            only; e.g. a validation search flying a gain per row,
+            :mod:`quadwind_trl.evaluation.base_search`).
     """
+    if controller is not None and workers != 1:
+        raise ValueError(f"build_env: a controller object flies in one process; got workers={workers}")
     if spec.wind_input != "truth" and estimator is None:
         raise ValueError(f"wind_input={spec.wind_input!r} needs an estimator")
     if estimator is not None and estimator.schema != spec.regime:
@@ -232,7 +253,8 @@ def build_env(
     if workers < 1 or spec.num_envs % workers:
         raise ValueError(f"workers={workers}; allowed: >= 1 and dividing RLEnvSpec.num_envs={spec.num_envs}")
     if workers == 1:
-        env = TransformedEnv(_base_env(spec), Compose(*_row_transforms(spec, estimator), *_batch_transforms(spec)))
+        env = TransformedEnv(_base_env(spec, controller=controller),
+                             Compose(*_row_transforms(spec, estimator), *_batch_transforms(spec)))
     else:
         n = spec.num_envs // workers
         # the estimator travels to the workers pickled, so every worker flies this very network

@@ -3,6 +3,8 @@
 * :class:`WindEstimate`: any frozen estimator (``quadwind_trl.estimator.WindEstimator``) on its
   per-sub-env 10 Hz feature ring + spike-gated EMA -> ``wind_hat`` (north, east);
   ``source="truth"`` writes the true mean wind instead (oracle).
+* :class:`BaseWindInput`: the wind estimate (or the true mean wind, or zero) as the step input
+  of a wind feed-forward base controller.
 * :class:`ZeroInputs`: named policy inputs forced to 0 (the ablations: the two wind inputs, or
   others a policy trains without).
 * :class:`PolicyObservation`: the paper's 23-dim ``observation`` (layout and keys:
@@ -26,12 +28,14 @@ Composing them (``quadwind_trl.rl.envs.make_env`` builds the full training stack
         ZeroInputs(WIND_CHANNELS),                           # the ablation: wind channels = 0
     ))
 """
+from .base_wind import BaseWindInput
 from .episode import EpisodeControl
 from .normalization import RunningObsNorm
 from .observation import PolicyObservation, ZeroInputs
 from .wind import WindEstimate
 
 __all__ = [
+    "BaseWindInput",
     "EpisodeControl",
     "PolicyObservation",
     "RunningObsNorm",

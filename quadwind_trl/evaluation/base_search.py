@@ -1,0 +1,125 @@
+"""The validation search for the classical base controllers' gains and filter constants.
+
+Each candidate is a :class:`~quadwind_trl.config.ControllerConfig` of one family (one
+disturbance model, with or without integral action), and a family flies in one batch: every
+candidate flies its own copy of the regime's validation sweep
+(:func:`~quadwind_trl.rl.paired.validation_scenarios`), and the law's constants are per-row
+tensors (:func:`per_row_controller`), so ``K`` candidates cost one batched flight of ``K x 45`` rows
+rather than ``K`` flights. Each row's world is its scenario's (exact replay); a row's physics
+agrees with the same scenario flown alone to float rounding (another batch layout), which is
+what a search needs, and the chosen values are then flown on the test sweeps in the ablation's
+own layout.
+
+A candidate is scored as the trainer scores a policy (:func:`~quadwind_trl.rl.paired.validation_score`:
+the mean episode RMSE plus the mean of its worst tenth), and the search keeps the lowest score.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import torch
+from tensordict import TensorDictBase
+
+from ..config import ControllerConfig, EnvConfig
+from ..envs.controller import CascadeController, ClassicalParams, ControllerParams
+from ..estimator import WindEstimator
+from ..envs.runner import flight_order, fly
+from ..rl.envs import RLEnvSpec, WindInput, build_env
+from ..rl.paired import improvement, validation_score, win_rate
+
+
+
+
+def per_row_controller(candidates: Sequence[ControllerConfig], row_candidate: torch.Tensor, config: EnvConfig,
+                       device: torch.device | str = "cpu") -> CascadeController:
+    """One :class:`CascadeController` whose env row ``i`` flies ``candidates[row_candidate[i]]``:
+    their integral gain and limit and observer filter gain as per-row tensors.
+    The candidates must be of one family (the same disturbance model; a candidate without integral
+    action is the family's ``Ki = 0`` row) and share the cascade's PD gains."""
+    if not candidates:
+        raise ValueError("per_row_controller: no candidates")
+    families = sorted({c.disturbance for c in candidates})
+    if len(families) > 1:
+        raise ValueError(f"per_row_controller: candidates of one disturbance model only; got {families}")
+    pd_fields = {(c.kp_pos, c.kd_pos, c.k_att, c.k_rate, c.max_tilt_deg, c.pos_error_limit_m, c.feedback) for c in candidates}
+    if len(pd_fields) > 1:
+        raise ValueError("per_row_controller: the candidates differ in their PD cascade; only the classical additions may")
+    dt = config.timing.control_dt_s
+    extras = [ClassicalParams.from_config(c, config.vehicle, dt, device) for c in candidates]
+
+    def rows(values: list[torch.Tensor]) -> torch.Tensor:
+        return torch.stack(values)[row_candidate.to(device)]
+
+    first = extras[0]
+    extra = replace(
+        first,
+        ki=None if all(e.ki is None for e in extras) else rows([torch.zeros(3, device=device) if e.ki is None else e.ki
+                                                                for e in extras]),
+        integral_limit=rows([e.integral_limit for e in extras]),
+        observer_gain=rows([torch.tensor([e.observer_gain], device=device) for e in extras]),
+    )
+    return CascadeController(ControllerParams.from_config(candidates[0], config.vehicle, device), extra)
+
+
+@dataclass(frozen=True)
+class CandidateResult:
+    """One candidate's validation flights against the PD that flew the same episodes."""
+
+    controller: ControllerConfig
+    rmse_xy: torch.Tensor  # [M] per validation episode, m
+    rmse_z: torch.Tensor
+    crashed: torch.Tensor
+
+    @property
+    def rmse(self) -> torch.Tensor:
+        return torch.sqrt(self.rmse_xy**2 + self.rmse_z**2)
+
+    def row(self, pd: "CandidateResult") -> dict:
+        """The search table's row: the score, the means, and the gains over PD (%; wins of ``M``)."""
+        wins, pairs = win_rate(pd.rmse, self.rmse)
+        return {
+            "validation_score": validation_score(self.rmse),
+            "rmse_xy": float(self.rmse_xy.double().mean()),
+            "rmse_z": float(self.rmse_z.double().mean()),
+            "improvement_xy_pct": improvement(pd.rmse_xy, self.rmse_xy),
+            "improvement_z_pct": improvement(pd.rmse_z, self.rmse_z),
+            "wins": wins,
+            "episodes": pairs,
+            "crashed": int(self.crashed.sum()),
+        }
+
+
+def fly_candidates(
+    regime: str,
+    candidates: Sequence[ControllerConfig],
+    scenarios: TensorDictBase,
+    estimator: WindEstimator | None = None,
+    *,
+    base_wind_input: WindInput = "estimate",
+    config: EnvConfig | None = None,
+    spec_settings: dict | None = None,
+    device: str = "cpu",
+    compile_step: bool = False,
+    progress: bool = False,
+) -> list[CandidateResult]:
+    """Every candidate (one family) flown on ``scenarios`` in one batch; results in candidate order.
+
+    ``config``: the env config the candidates replace the controller of (default: the regime's).
+    ``base_wind_input``: what a wind feed-forward family flies on (``RLEnvSpec.base_wind_input``;
+    ``"estimate"`` needs ``estimator``). ``spec_settings``: other :class:`~quadwind_trl.rl.envs.RLEnvSpec`
+    fields (the estimate's ``ema_tau_s`` and ``estimate_every_s``)."""
+    m, k = scenarios.batch_size[0], len(candidates)
+    spec = RLEnvSpec(regime=regime, num_envs=m * k, device=device, compile_step=compile_step,
+                     wind_input="estimate" if base_wind_input == "estimate" else "truth",
+                     base_wind_input=base_wind_input, config=replace(config or RLEnvSpec(regime).env_config,
+                                                                     controller=candidates[0]),
+                     **(spec_settings or {}))
+    flights = torch.cat([scenarios] * k)  # candidate-major: row i is candidate i // m's
+    # the runner flies the rows longest first: env row j flies flight order[j]
+    order, _ = flight_order(spec.env_config, flights, device)
+    controller = per_row_controller(candidates, order // m, spec.env_config, device)
+    env = build_env(spec, estimator, controller=controller, freeze_norm=True)
+    res = fly(env, flights, progress=progress)
+    return [CandidateResult(c, res.rmse_xy[i * m:(i + 1) * m], res.rmse_z[i * m:(i + 1) * m],
+                            res.crashed[i * m:(i + 1) * m]) for i, c in enumerate(candidates)]

@@ -1,0 +1,116 @@
+"""The validation search for the classical base controllers: each family's gain or filter constant
+on a grid, flown on the regime's validation sweep (the trainer's 45 horizontal, 48 vertical
+episodes; never a test sweep) and scored as the trainer scores a policy (mean RMSE plus the mean
+of the worst tenth; lower is better).
+
+    python recipes/tune_base_controllers.py                      # both regimes, every family
+    python recipes/tune_base_controllers.py --regimes horizontal --families pid
+    python recipes/tune_base_controllers.py --quick              # three episodes, short flights, small grids
+
+Families (``ControllerConfig``): ``pid`` the integral gain ``Ki`` (all three axes; the integral
+clamped at 3 m s), ``dob`` the disturbance observer's filter time constant, ``pid_ff`` the integral
+gain on top of wind feed-forward from the shipped estimator (``Ki = 0`` is PD with feed-forward
+alone). The candidates of a family fly in one batch (``evaluation.base_search``). Every family
+flies in the env the shipped policy of the regime trained in (its config, its estimate's EMA and
+query interval), so the chosen controllers see the worlds the RL sees. Writes
+``results/base_search_<regime>.json`` (``--quick``: under ``runs/quick/results``): every
+candidate's score, means, gains over PD and crashes, the chosen value per family, the command,
+commit and platform. The chosen values are copied into ``regimes.CLASSICAL_CONTROLLERS`` by hand,
+and docs/simulator.md ("Classical base controllers") shows the tables.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import torch
+
+from quadwind_trl.config import ControllerConfig, config_to_dict
+from quadwind_trl.estimator import load_estimator
+from quadwind_trl.evaluation.ablation import policy_compile_step, policy_env_config
+from quadwind_trl.evaluation.base_search import fly_candidates
+from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, write_json
+from quadwind_trl.outputs import hold_for_command
+from quadwind_trl.quick import SWEEP_QUICK
+from quadwind_trl.regimes import VALIDATION_SWEEPS
+from quadwind_trl.rl.envs import policy_env_settings
+from quadwind_trl.rl.paired import validation_scenarios
+from quadwind_trl.rl.policy import load_policy
+
+KI_GRID = (0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)  # 1/s^3, every axis
+TAU_GRID = (0.05, 0.1, 0.2, 0.4, 0.8, 1.6)  # s
+QUICK_KI, QUICK_TAU = (0.0, 2.0), (0.2, 0.8)
+
+
+def families(quick: bool) -> dict[str, tuple[str, str, list[ControllerConfig]]]:
+    """``{family: (searched field, base wind input, candidates)}``."""
+    ki, tau = (QUICK_KI, QUICK_TAU) if quick else (KI_GRID, TAU_GRID)
+    axes = lambda k: (k, k, k)  # noqa: E731
+    return {
+        "pid": ("ki_pos", "zero", [ControllerConfig(ki_pos=axes(k)) for k in ki]),
+        "dob": ("observer_tau_s", "zero", [ControllerConfig(disturbance="observer", observer_tau_s=t) for t in tau]),
+        "pid_ff": ("ki_pos", "estimate", [ControllerConfig(ki_pos=axes(k), disturbance="wind_model") for k in ki]),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--regimes", nargs="+", default=["horizontal", "vertical"], choices=["horizontal", "vertical"])
+    parser.add_argument("--families", nargs="+", default=list(families(False)), choices=list(families(False)))
+    parser.add_argument("--quick", action="store_true", help="three validation episodes, 10 s patterns, two candidates a family")
+    parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--compile", action=argparse.BooleanOptionalAction, default=None,
+                        help="the compiled simulator step (default: as the regime's shipped policy trained; --quick: eager)")
+    args = parser.parse_args()
+    results = args.results or Path("runs/quick/results" if args.quick else "results")
+    outputs = [results / f"base_search_{regime}.json" for regime in args.regimes]
+    hold_for_command(*outputs, what="base-controller search results", hint="wait for it to finish, or choose another --results")
+    torch.set_num_threads(args.threads)
+
+    for regime, out in zip(args.regimes, outputs):
+        _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
+        config = policy_env_config(payload)
+        if args.quick:
+            config = SWEEP_QUICK.config(config)
+        estimator = load_estimator(regime, config=config)
+        settings = policy_env_settings(payload["env_spec"], estimator)
+        settings.pop("zero_inputs")
+        compile_step = (not args.quick and policy_compile_step(payload)) if args.compile is None else args.compile
+        scenarios = validation_scenarios(regime, 3 if args.quick else None)
+        if args.quick:
+            scenarios = SWEEP_QUICK.scenarios(scenarios, VALIDATION_SWEEPS[regime].ranges.top_altitude_m)
+        report = {"command": command_line(sys.argv), "git_commit": git_commit(), "platform": platform_info(),
+                  "regime": regime, "episodes": scenarios.batch_size[0], "compile_step": compile_step,
+                  "estimate": settings, "config": config_to_dict(config), "families": {}}
+        pd = None
+        for name in args.families:
+            field, wind, candidates = families(args.quick)[name]
+            candidates = [replace(c, feedback=config.controller.feedback) for c in candidates]
+            start = time.perf_counter()
+            flown = fly_candidates(regime, candidates, scenarios, estimator, base_wind_input=wind, config=config,
+                                   spec_settings=settings, compile_step=compile_step, progress=True)
+            wall = time.perf_counter() - start
+            if pd is None:  # the integral family's Ki = 0 row is the paper's PD (the search's reference)
+                pd = fly_candidates(regime, [config.controller], scenarios, estimator, base_wind_input="zero", config=config,
+                                    spec_settings=settings, compile_step=compile_step)[0]
+            rows = [dict(value=getattr(c.controller, field), **c.row(pd)) for c in flown]
+            best = min(rows, key=lambda r: r["validation_score"])
+            report["families"][name] = {"field": field, "base_wind_input": wind, "wall_time_s": wall, "candidates": rows,
+                                        "chosen": best["value"]}
+            print(f"{regime} {name} ({field}, {len(candidates)} candidates x {scenarios.batch_size[0]} episodes, {wall:.0f} s):")
+            for r in rows:
+                mark = " <- chosen" if r is best else ""
+                print(f"  {r['value']}: score {r['validation_score']:.3f} m, xy {r['rmse_xy']:.3f} m "
+                      f"({r['improvement_xy_pct']:+.1f} %), z {r['rmse_z']:.3f} m ({r['improvement_z_pct']:+.1f} %), "
+                      f"wins {r['wins']}/{r['episodes']}, crashed {r['crashed']}{mark}")
+        report["pd"] = pd.row(pd)
+        write_json(out, report)
+        print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
