@@ -526,3 +526,32 @@ def perception_value(analyses: dict[str, dict], path: Path, variants: dict[str, 
             panel.grid(alpha=0.3)
             panel.legend(fontsize=8)
     return _save(fig, path)
+
+
+def results_summary(rows: list[dict], path: Path) -> Path:
+    """The summary's claims as one chart: per claim, the RMSE reduction against PD of the shipped
+    policy (paired bootstrap 95 % interval), the mean over training seeds (95 % t-interval) and the
+    paper's figure (its interval where it states one). Rows come from
+    :func:`~quadwind_trl.evaluation.report.summary_rows`."""
+    fig, a = plt.subplots(figsize=(8.5, 0.75 * len(rows) + 1.4))
+    y = np.arange(len(rows))[::-1].astype(float)
+    for yi, row in zip(y, rows):
+        lo, hi = row["ci"]
+        a.errorbar(row["improvement"], yi + 0.18, xerr=[[row["improvement"] - lo], [hi - row["improvement"]]], fmt="o",
+                   color=COLORS["aware"], capsize=3, label="shipped policy (bootstrap 95 %)" if yi == y[0] else None)
+        seeds = row["seeds"]
+        if seeds["n_seeds"] > 1 and np.isfinite(seeds["t_low"]):
+            a.errorbar(seeds["mean"], yi, xerr=[[seeds["mean"] - seeds["t_low"]], [seeds["t_high"] - seeds["mean"]]],
+                       fmt="s", color="tab:cyan", capsize=3,
+                       label=f"mean of {seeds['n_seeds']} training seeds (t 95 %)" if yi == y[0] else None)
+        ref = row["paper"]
+        if ref is not None:
+            err = None if ref["ci"] is None else [[ref["improvement"] - ref["ci"][0]], [ref["ci"][1] - ref["improvement"]]]
+            a.errorbar(ref["improvement"], yi - 0.18, xerr=err, fmt="D", color="k", capsize=3,
+                       label="paper" if yi == y[0] else None)
+    a.axvline(0.0, color="gray", lw=0.8)
+    a.set_yticks(y, [f"{row['label']}\n{row['n']} episodes" for row in rows], fontsize=8)
+    a.set(xlabel="RMSE reduction against PD (%; positive: RL tracks better)",
+          title="Wind-aware RL against PD on the test sweeps")
+    a.legend(fontsize=8, loc="upper left")
+    return _save(fig, path)
