@@ -60,3 +60,20 @@ def test_the_issue_reference_check_finds_a_reference(tmp_path):
     for text in ("see issue 27", "(Issue 25, item 4)", "ISSUE 3"):
         assert ISSUE_REFERENCE.search(text), text
     assert not ISSUE_REFERENCE.search("an issue with the wind cap")
+
+
+def test_results_page_opens_with_the_summary_of_the_committed_results():
+    """docs/results.md starts with the at-a-glance table and figure, rendered by recipes/report.py
+    from results/ (one row per claim, the shipped policy beside the seeds and the paper)."""
+    from quadwind_trl.evaluation.report import read_ablations, summary_rows, summary_section
+
+    results = ROOT / "results"
+    seeds = {p.name.removeprefix("seed"): read_ablations(p) for p in sorted((results / "seeds").glob("seed*"))}
+    rows = summary_rows(read_ablations(results), {k: v for k, v in seeds.items() if v})
+    assert [r["label"] for r in rows][:3] == ["horizontal xy", "vertical xy", "vertical z"]
+    assert rows[0]["n"] == 225 and rows[0]["seeds"]["n_seeds"] == 5 and rows[0]["paper"]["improvement"] == 48.0
+    page = (ROOT / "docs" / "results.md").read_text()
+    table = summary_section(rows, "figures/results_summary.png")
+    assert page.index("## At a glance") < page.index("## PD baseline")
+    assert table in page, "docs/results.md is stale: run python recipes/report.py"
+    assert (ROOT / "docs" / "figures" / "results_summary.png").exists()
