@@ -1,5 +1,5 @@
 """The PPO update's minibatch step: where its time goes, and whether compiling the networks buys
-any of it back (the "compiled or fused PPO update" lever of issue 28).
+any of it back (a candidate lever for training speed).
 
     python bench/update_step.py                  # 1 and 2 threads, eager and compiled
     python bench/update_step.py --threads 1 --steps 100

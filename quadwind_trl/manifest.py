@@ -1,5 +1,5 @@
-"""Provenance for every artifact the repo ships: command, config, commit, metrics (DESIGN.md,
-invariant 6), written atomically."""
+"""Provenance for every artifact the repo ships: command, config, commit, metrics,
+written atomically."""
 from __future__ import annotations
 
 import json

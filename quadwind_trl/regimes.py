@@ -140,7 +140,7 @@ VERTICAL_SWEEP = EvalSweep("vertical", VERTICAL, (3.0, 5.0, 7.0, 9.0), (0.05, 0.
 OOD_SWEEP = EvalSweep("ood", HORIZONTAL, (13.0, 14.0, 15.0), (0.1, 0.2), 3, HORIZONTAL_RL)
 SWEEPS = {s.name: s for s in (HORIZONTAL_SWEEP, VERTICAL_SWEEP, OOD_SWEEP)}
 
-# Model selection (issue 25): one sweep per regime on its own design seed, disjoint from the test
+# Model selection: one sweep per regime on its own design seed, disjoint from the test
 # sweeps' 9001 and from training (the samplers draw from the env seed), spanning the training range
 # to its strong-wind, high-intensity corner: 45 horizontal, 48 vertical episodes.
 VALIDATION_DESIGN_SEED = 9201

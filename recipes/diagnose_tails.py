@@ -1,4 +1,4 @@
-"""Where the shipped policy's worst episodes come from (issue 25, item 1; docs/rl.md, "Where the
+"""Where the shipped policy's worst episodes come from (docs/rl.md, "Where the
 tail comes from"): re-fly PD and the wind-aware policy on every episode of the horizontal and OOD
 ablation sweeps, in the batch layout their results files record, with a per-step record of the
 limits and the policy's inputs; compare the worst episodes with the median ones.

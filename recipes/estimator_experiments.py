@@ -1,4 +1,4 @@
-"""The estimator experiments of issue 27, item 2, as a section of ``docs/results/`` that
+"""The estimator experiments as a section of ``docs/results/`` that
 ``python recipes/report.py`` merges into docs/results.md.
 
     python recipes/estimator_experiments.py
@@ -71,7 +71,7 @@ def main() -> None:
         r = json.loads(Path(path).read_text())
         evaluations[r["regime"]].append((label, r, repo_relative(Path(path))))
     md = [
-        "## Estimator experiments on our field (issue 27)", "",
+        "## Estimator experiments on our field", "",
         f"Made by `{command_line(sys.argv)}` (commit `{git_commit()}`) from the checkpoints and evaluations listed below. "
         "Each run trains the shipped architecture and schedule of its regime on the shipped dataset "
         "(`data/flights_horizontal`, seed 1001; `data/flights_vertical`, seed 2001) with the settings named changed; runs "

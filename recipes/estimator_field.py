@@ -1,4 +1,4 @@
-"""The wind estimators on both turbulence fields (issue 27): the 2x2 of the network trained on
+"""The wind estimators on both turbulence fields: the 2x2 of the network trained on
 {our field, the paper's cube} x evaluated on {ours, cube}, with the model-based UKF on both, in
 one section of ``docs/results/`` that ``python recipes/report.py`` merges into docs/results.md.
 
@@ -57,7 +57,7 @@ def main() -> None:
                          "expected an evaluate_estimator.py JSON whose checkpoint has its manifest beside it")
     if not cells:
         parser.error(f"--evaluation: none of {[repo_relative(p) for p in args.evaluation]} exists")
-    md = ["## The estimator on the paper's turbulence field (issue 27)", "",
+    md = ["## The estimator on the paper's turbulence field", "",
           f"Made by `{command_line(sys.argv)}` (commit `{git_commit()}`) from the evaluations listed at the end."
           + (f" Not yet evaluated: {', '.join(f'`{m}`' for m in missing)}." if missing else ""), "",
           field_comparison_markdown(cells, PAPER_FIELD)]  # fmt: skip

@@ -11,7 +11,8 @@ at the 10 m reference height, turbulence intensity ``--intensity``, the other wi
 drawn over the RL training ranges with a fixed seed (``FIRST_FLIGHT_SEED``, used for nothing
 else). Prints each episode's xy RMSE for both and the paired improvement; writes
 ``first_flight.json`` (per-episode table, paired statistics, command, commit, platform) and
-``first_flight.png`` (the episode of median improvement from above, with the wind) to ``--out``.
+``first_flight.png`` (the episode of median improvement: both controllers' error in a frame
+that follows the reference, the error over time, the wind) to ``--out``.
 
 Why 16 episodes of 30 s: the two controllers fly one batch each, so the wall time grows with the
 pattern's length and hardly with the episode count (on one thread: 16 x 30 s in 51 s, 8 x 60 s in
@@ -27,7 +28,7 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.estimator import load_estimator
-from quadwind_trl.evaluation.figures import trace_episode
+from quadwind_trl.evaluation.figures import tracking_error_episode
 from quadwind_trl.evaluation.first_flight import FirstFlight, fly_first_flight, summarize_first_flight
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
@@ -77,7 +78,7 @@ def main() -> None:
     row = summary["shown_episode"]
     title = (f"{table['trajectory'][row]}, U = {flight.wind_m_s:g} m/s at 10 m, intensity "
              f"{flight.intensity:g}\nepisode {row} of {flight.episodes} (the median reduction)")
-    figure = trace_episode(results, row, title, args.out / "first_flight.png", wind_arrow=True)
+    figure = tracking_error_episode(results, row, title, args.out / "first_flight.png")
     summary.update(command=command_line(sys.argv), git_commit=commit, platform=platform_info(), policy=repo_relative(POLICY),
                    estimator=repo_relative(ESTIMATOR), compile_step=False, wall_time_s=seconds, figure=repo_relative(figure))
     write_json(args.out / "first_flight.json", summary)

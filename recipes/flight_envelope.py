@@ -1,4 +1,4 @@
-"""The flight envelope, stated (issue 25, item 2): the airspeed the vehicle can hold in level flight
+"""The flight envelope, stated: the airspeed the vehicle can hold in level flight
 (tilt limit, rotor thrust, drag) against what every evaluation-sweep cell and training design
 demands (pattern speed + mean wind at the flight altitude + gusts), and a simulator check that the
 PD stops holding position where the envelope says.
@@ -33,7 +33,7 @@ from quadwind_trl.regimes import (
 )
 
 EDGE_INTENSITIES = (0.05, 0.1, 0.15, 0.2, 0.25)
-# issue 25: PD on a held-out design at U = 11 m/s, shear 0.23, 100 m: mean xy RMSE 17.8 m at
+# measured: PD on a held-out design at U = 11 m/s, shear 0.23, 100 m: mean xy RMSE 17.8 m at
 # intensity 0.20, 1.00 m at 0.10
 OBSERVED = ((11.0, 0.23, 0.20, "PD 17.8 m"), (11.0, 0.23, 0.10, "PD 1.00 m"))
 DESIGNS = {"horizontal RL": (HORIZONTAL_RL, "horizontal"), "vertical RL": (VERTICAL_RL, "vertical"),

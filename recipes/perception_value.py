@@ -1,4 +1,4 @@
-"""What the wind estimate is worth to the controller (issue 29): every training seed's paired
+"""What the wind estimate is worth to the controller: every training seed's paired
 ablation, compared across seeds, per wind speed and per flight phase; with policy variants.
 
     python recipes/perception_value.py

@@ -132,11 +132,11 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
 REGIMES = ("horizontal", "vertical")
 DEFAULT_JOBS = 2  # stages at once (--jobs): every recipe runs on one thread, and the target machine has 2 cores
 PPO_RECIPES = {"horizontal": "ppo_horizontal.py", "vertical": "ppo_vertical_curriculum.py"}
-SEEDS = (0, 1, 2, 3, 4)  # five per regime and kind (issue 25): the shipped one is the median by validation
+SEEDS = (0, 1, 2, 3, 4)  # five per regime and kind: the shipped one is the median by validation
 # the policies trained per regime and seed, with their recipe options: the paper's wind-aware
 # policy, and one trained from scratch with its wind inputs zeroed (the perception baseline)
 POLICY_KINDS = {"aware": (), "trained_blind": ("--wind-input", "zero")}
-# the policy trained on the true mean wind (issue 29: what a perfect estimate is worth to a policy
+# the policy trained on the true mean wind (what a perfect estimate is worth to a policy
 # trained with it, against the trained-blind one); three seeds, horizontal, never shipped
 ORACLE_KIND, ORACLE_SEEDS = "trained_oracle", (0, 1, 2)
 TRAINING_OPTIONS = POLICY_KINDS | {ORACLE_KIND: ("--wind-input", "truth")}

@@ -9,7 +9,7 @@ The best checkpoint goes to --out (default: quadwind_trl/checkpoints/estimator_<
 shipped one; --quick: runs/estimator/estimator_<regime>_quick.pt) with its JSON manifest beside
 it; CSV logs under runs/estimator/<exp_name>/. An interrupted run continues with --resume.
 
-The inputs, the network and the loss can be changed for an experiment (issue 27; write it under
+The inputs, the network and the loss can be changed for an experiment (write it under
 results/experiments/, never over the shipped checkpoint), e.g. trailing means of 10, 30, 60 and
 120 s, a two-layer GRU, half the training cases, the plain Huber loss:
 

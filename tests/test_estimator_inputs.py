@@ -1,4 +1,4 @@
-"""Issue 27, item 2: the estimator's inputs and network as experiment settings (window length,
+"""The estimator's inputs and network as experiment settings (window length,
 trailing means, width and depth, a share of the training cases), and every consumer of a
 checkpoint (the evaluation recipe, the env's ``WindEstimate``) reading its inputs from it."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Issue 27: the turbulence layout of a generated dataset (``generate_flights.py --turbulence-layout``)
+"""The turbulence layout of a generated dataset (``generate_flights.py --turbulence-layout``)
 and the model-based UKF through the estimator evaluation (``evaluate_estimator.py --checkpoint ukf``)."""
 from __future__ import annotations
 

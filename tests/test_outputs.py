@@ -1,4 +1,4 @@
-"""One writer per output, and complete means complete (issue 30): a second writer of a dataset or
+"""One writer per output, and complete means complete: a second writer of a dataset or
 a training run is refused at once with a message naming the output and the holder; a run killed
 with SIGKILL leaves no stale lock and resumes without losing what it finished; a dataset missing a
 file, or holding one of another size, names it; a resumed training run's logs neither repeat nor

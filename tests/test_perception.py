@@ -1,4 +1,4 @@
-"""What the wind estimate is worth (issue 29): flight phases of a flight record, the across-seed
+"""What the wind estimate is worth: flight phases of a flight record, the across-seed
 statistics of the paired ablation, and the report section drawn from them."""
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Row ``i`` of every draw is a pure function of ``(key[i], counter[i], stream, column)``: it does
 not depend on the batch size, on the row's position in the batch, or on what other rows did.
 That is what lets a paired evaluation replay one episode spec under several controllers and get
-identical wind and sensor noise (DESIGN.md, invariant 2).
+identical wind and sensor noise (docs/architecture.md, "Exact replay").
 
 The hash is a 32-bit xorshift-multiply integer mixer in the style of ``lowbias32`` (the first
 multiplier, 0x7FEB352D, is lowbias32's; the second, 0x2C1B3C6D, is not lowbias32's 0x846CA68B:

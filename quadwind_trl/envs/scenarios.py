@@ -1,7 +1,7 @@
 """Episode specs ("scenarios") and the Latin-hypercube wind-regime designs.
 
 A scenario fully defines one episode: running it gives the same physics whatever the
-controller, the batch size or its row in the batch (DESIGN.md, invariant 2). It is a
+controller, the batch size or its row in the batch (exact replay). It is a
 :class:`~tensordict.TensorDict` of batch ``[N]`` with the fields of ``SCENARIO_FIELDS``.
 """
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """Estimator input features: one incremental, batched, stateful code path for the dataset and the
-online transform (DESIGN.md invariant 3).
+online transform (docs/architecture.md, "One feature code path").
 
 A :class:`FeatureExtractor` consumes the raw flight record one 10 Hz tick at a time::
 

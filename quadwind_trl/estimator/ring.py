@@ -2,7 +2,7 @@
 
 :class:`FeatureRing` (plain Python, no TorchRL) feeds one 10 Hz sample of the raw record into
 :class:`~quadwind_trl.estimator.features.FeatureExtractor` (the very same ``step`` that builds the
-offline datasets, DESIGN.md invariant 3) for the rows that tick, and keeps a ring of the last
+offline datasets) for the rows that tick, and keeps a ring of the last
 ``window`` feature vectors per row; :class:`~quadwind_trl.transforms.wind.WindEstimate` owns one.
 
 Timing. The env's ``step`` observation entry is the control-step index; a row *ticks* when

@@ -79,7 +79,7 @@ class TrainConfig:
     compile: bool = False
     log_every_steps: int = 50
     loss: EstimatorLossConfig = field(default_factory=EstimatorLossConfig)
-    # the inputs and the network (issue 27's experiments; the defaults are the paper's)
+    # the inputs and the network, settable for experiments (the defaults are the paper's)
     window: int = WINDOW  # samples the network reads per estimate (60 = 6 s at 10 Hz)
     trailing_windows: tuple[int, ...] | None = None  # trailing-mean lengths, samples (None: the regime's, DEFAULT_TRAILING_WINDOWS)
     hidden: int = 128  # GRU state and attention width

@@ -1,4 +1,4 @@
-"""Every evaluated regime against the flight envelope (DESIGN.md, invariant 11): the airspeed each
+"""Every evaluated regime against the flight envelope: the airspeed each
 sweep cell and training design demands, the margin to the envelope of :mod:`quadwind_trl.envs.envelope`,
 and a simulator check that the PD stops holding position where the envelope says.
 

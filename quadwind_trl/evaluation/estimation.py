@@ -342,7 +342,7 @@ def ema_sweep(
     return out
 
 
-#: how one flight's sequence of estimates becomes its per-flight estimate (issue 27): the
+#: how one flight's sequence of estimates becomes its per-flight estimate: the
 #: paper's mean over every window, the middle of the ordered estimates, and the estimate made
 #: last or over the flight's second half, when the trailing means have seen the most of it
 FLIGHT_AGGREGATES: tuple[str, ...] = ("mean", "median", "trimmed_mean_20", "second_half_mean", "last")

@@ -1,4 +1,4 @@
-"""The estimator experiments (issue 27, item 2) as markdown: each training run's validation
+"""The estimator experiments as markdown: each training run's validation
 figures beside the shipped recipe's, what it changed, and the test figures of the runs chosen
 on validation only (``recipes/estimator_experiments.py`` writes the section).
 

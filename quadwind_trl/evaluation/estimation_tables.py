@@ -213,7 +213,7 @@ def turbulence_layout(data_info: dict) -> str:
 
 
 def field_comparison_markdown(cells: list[tuple[str, dict, str]], paper_field: str) -> str:
-    """The estimators on both turbulence fields (issue 27): one row per evaluation, as
+    """The estimators on both turbulence fields: one row per evaluation, as
     ``(estimator label, evaluate_estimator JSON, its path)``. Each row is the evaluated field's
     held-out test split: raw per-window, per-flight and direction errors, the EMA at the tau chosen
     on that field's validation flights, and the field's own flight-mean floor (the per-flight

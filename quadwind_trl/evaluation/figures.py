@@ -155,6 +155,48 @@ def trace_episode(results: dict[str, FlightResults], row: int, title: str, path:
     return _save(fig, path)
 
 
+def _track_frame_error(pos: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal error split along the reference's direction of travel: (along-track, ahead
+    positive; cross-track, left of the track positive), in m. The direction is the reference's own
+    velocity, by central differences of its 10 Hz samples."""
+    tangent = np.gradient(ref[:, :2], axis=0)
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
+    err = pos[:, :2] - ref[:, :2]
+    along = (err * tangent).sum(-1)
+    cross = err[:, 1] * tangent[:, 0] - err[:, 0] * tangent[:, 1]
+    return along, cross
+
+
+def tracking_error_episode(results: dict[str, FlightResults], row: int, title: str, path: Path) -> Path:
+    """One episode's tracking error at the scale it has: (a) PD's and wind-aware RL's positions in
+    a frame that moves with the reference (along-track against cross-track error, equal axes, in
+    m), (b) the horizontal error over time, (c) the mean wind. A top-down plot of the tracks
+    cannot show this: a pattern spans hundreds of metres, the errors a fraction of one."""
+    fig, axes = plt.subplots(1, 3, figsize=(13, 4.6), gridspec_kw={"width_ratios": [4, 5, 1]})
+    a, b = axes[:2]
+    a.axhline(0.0, color="k", lw=0.6, ls="--")
+    a.axvline(0.0, color="k", lw=0.6, ls="--")
+    for name in ("pd", "aware"):
+        pos, ref = _trace(results[name], row, pattern_only=True)
+        along, cross = _track_frame_error(pos, ref)
+        err = np.hypot(along, cross)
+        rmse = results[name].rmse_xy[row].item()
+        a.plot(along, cross, color=COLORS[name], lw=0.8, alpha=0.85, label=f"{LABELS[name]} (xy RMSE {rmse:.2f} m)")
+        circle = plt.Circle((0.0, 0.0), rmse, fill=False, color=COLORS[name], lw=1.2, ls=":")
+        a.add_patch(circle)
+        b.plot(np.arange(len(err)) / 10.0, err, color=COLORS[name], lw=0.9, label=LABELS[name])
+    a.plot([0.0], [0.0], "k+", ms=10, mew=1.5, label="reference (the origin of this frame)")
+    a.set(xlabel="along-track error (m, ahead +)", ylabel="cross-track error (m, left +)",
+          title="position in the frame of the reference\n(dotted circles: xy RMSE)")
+    a.set_aspect("equal", adjustable="datalim")
+    a.legend(fontsize=7, loc="upper left")
+    b.set(xlabel="time since the pattern start (s)", ylabel="horizontal error (m)", title=title)
+    b.set_ylim(bottom=0.0)
+    b.legend(fontsize=8)
+    _wind_arrow(axes[2], results["pd"], row)
+    return _save(fig, path)
+
+
 def _wind_arrow(a, res: FlightResults, row: int) -> None:
     """An arrow along the episode's mean wind, with its speed and meteorological direction."""
     valid = res.log["valid"][row]
@@ -483,4 +525,33 @@ def perception_value(analyses: dict[str, dict], path: Path, variants: dict[str, 
         for panel in (a, b):
             panel.grid(alpha=0.3)
             panel.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def results_summary(rows: list[dict], path: Path) -> Path:
+    """The summary's claims as one chart: per claim, the RMSE reduction against PD of the shipped
+    policy (paired bootstrap 95 % interval), the mean over training seeds (95 % t-interval) and the
+    paper's figure (its interval where it states one). Rows come from
+    :func:`~quadwind_trl.evaluation.report.summary_rows`."""
+    fig, a = plt.subplots(figsize=(8.5, 0.75 * len(rows) + 1.4))
+    y = np.arange(len(rows))[::-1].astype(float)
+    for yi, row in zip(y, rows):
+        lo, hi = row["ci"]
+        a.errorbar(row["improvement"], yi + 0.18, xerr=[[row["improvement"] - lo], [hi - row["improvement"]]], fmt="o",
+                   color=COLORS["aware"], capsize=3, label="shipped policy (bootstrap 95 %)" if yi == y[0] else None)
+        seeds = row["seeds"]
+        if seeds["n_seeds"] > 1 and np.isfinite(seeds["t_low"]):
+            a.errorbar(seeds["mean"], yi, xerr=[[seeds["mean"] - seeds["t_low"]], [seeds["t_high"] - seeds["mean"]]],
+                       fmt="s", color="tab:cyan", capsize=3,
+                       label=f"mean of {seeds['n_seeds']} training seeds (t 95 %)" if yi == y[0] else None)
+        ref = row["paper"]
+        if ref is not None:
+            err = None if ref["ci"] is None else [[ref["improvement"] - ref["ci"][0]], [ref["ci"][1] - ref["improvement"]]]
+            a.errorbar(ref["improvement"], yi - 0.18, xerr=err, fmt="D", color="k", capsize=3,
+                       label="paper" if yi == y[0] else None)
+    a.axvline(0.0, color="gray", lw=0.8)
+    a.set_yticks(y, [f"{row['label']}\n{row['n']} episodes" for row in rows], fontsize=8)
+    a.set(xlabel="RMSE reduction against PD (%; positive: RL tracks better)",
+          title="Wind-aware RL against PD on the test sweeps")
+    a.legend(fontsize=8, loc="upper left")
     return _save(fig, path)

@@ -1,4 +1,4 @@
-"""What the wind estimate is worth to the controller (issue 29): the paired ablation's results of
+"""What the wind estimate is worth to the controller: the paired ablation's results of
 several training seeds, compared across seeds.
 
 Per training seed the ablation (:mod:`~quadwind_trl.evaluation.ablation`) flies, on the same

@@ -1,4 +1,4 @@
-"""Flight phases of the 10 Hz flight record and the horizontal tracking error in each (issue 29).
+"""Flight phases of the 10 Hz flight record and the horizontal tracking error in each.
 
 Two classifications of every scored sample, both read off the reference path and the true mean
 wind, never off what a controller flew, so that every controller of a paired ablation is split

@@ -285,6 +285,71 @@ def seeds_section(seeds: dict[str, dict[str, dict]]) -> str:
     return "\n".join(lines)
 
 
+# the claims the summary states, one row each: (sweep, metric, label, the paper's figure or None)
+SUMMARY_CLAIMS = (
+    ("horizontal", "rmse_xy", "horizontal xy", {"improvement": paper.TRACKING_STATS["horizontal"]["improvement"],
+                                                "ci": paper.TRACKING_STATS["horizontal"]["ci"],
+                                                "pd": paper.TRACKING_STATS["horizontal"]["pd"][0]}),
+    ("vertical", "rmse_xy", "vertical xy", {"improvement": paper.TRACKING_STATS["vertical_xy"]["improvement"],
+                                            "ci": paper.TRACKING_STATS["vertical_xy"]["ci"],
+                                            "pd": paper.TRACKING_STATS["vertical_xy"]["pd"][0]}),
+    ("vertical", "rmse_z", "vertical z", {"improvement": paper.TRACKING_STATS["vertical_z"]["improvement"],
+                                          "ci": paper.TRACKING_STATS["vertical_z"]["ci"],
+                                          "pd": paper.TRACKING_STATS["vertical_z"]["pd"][0]}),
+    ("ood", "rmse_xy", "out of distribution xy (U = 13-15 m/s)", {"improvement": paper.OOD["improvement"], "ci": None,
+                                                                  "pd": paper.OOD["pd_mean"]}),
+    ("ood", "rmse_z", "out of distribution z", None),
+)
+#: what the best-classical column says until its controllers' rows are measured
+CLASSICAL_PENDING = "being measured"
+
+
+def summary_rows(ablations: dict[str, dict], seeds: dict[str, dict[str, dict]]) -> list[dict]:
+    """One row per claim of :data:`SUMMARY_CLAIMS` that the ablation files hold: episodes, PD's
+    mean RMSE, the shipped policy's reduction (bootstrap interval, wins), the mean over training
+    seeds with its 95 % t-interval, and the paper's figure."""
+    rows = []
+    for sweep, metric, label, ref in SUMMARY_CLAIMS:
+        block = ablations.get(sweep, {}).get(metric)
+        if block is None:
+            continue
+        aware = block["aware"]
+        per_seed = {seed: r[sweep][metric]["aware"]["improvement"] for seed, r in seeds.items()
+                    if metric in r.get(sweep, {})}
+        rows.append({"sweep": sweep, "metric": metric, "label": label, "n": aware["n"],
+                     "pd_mean": aware["baseline_mean"], "improvement": aware["improvement"],
+                     "ci": (aware["ci_low"], aware["ci_high"]), "wins": aware["wins"],
+                     "seeds": across_seeds(per_seed), "seed_names": sorted(per_seed), "paper": ref})
+    return rows
+
+
+def summary_section(rows: list[dict], figure: str | None = None) -> str:
+    """Results at a glance: the table of :func:`summary_rows` (and its figure) before the detail."""
+    lines = ["## At a glance", "",
+             "RMSE reduction against the PD baseline on the paper's test sweeps, `1 - mean RL / mean PD` (positive: the",
+             "wind-aware policy tracks better). *Shipped*: the shipped policy (the median training seed by validation),",
+             "with its paired bootstrap 95 % interval and wins. *Seeds*: the mean over every training seed with its",
+             "95 % Student-t interval. The best classical controller (PID, wind feed-forward, disturbance observer)",
+             "is being measured; its column fills in when it is.", "",
+             "| claim | episodes | PD RMSE, ours / paper (m) | shipped policy | seeds: mean (95 % t) | paper | best classical |",
+             "|---|---|---|---|---|---|---|"]
+    for row in rows:
+        ref, seeds = row["paper"], row["seeds"]
+        pd = f"{row['pd_mean']:.3f} / {ref['pd']:.2f}" if ref else f"{row['pd_mean']:.3f} / -"
+        shipped = f"{row['improvement']:+.1f} % ({row['ci'][0]:+.1f} to {row['ci'][1]:+.1f}), {row['wins']}/{row['n']}"
+        seed_cell = "-" if seeds["n_seeds"] == 0 else (
+            f"{seeds['mean']:+.1f} % ({_t_cell(seeds)}), seeds {', '.join(row['seed_names'])}")
+        if ref is None:
+            paper_cell = "not scored"
+        else:
+            paper_cell = f"{ref['improvement']:+.1f} %" + (f" ({ref['ci'][0]:+.1f} to {ref['ci'][1]:+.1f})" if ref["ci"] else "")
+        lines.append(f"| {row['label']} | {row['n']} | {pd} | {shipped} | {seed_cell} | {paper_cell} | {CLASSICAL_PENDING} |")
+    lines.append("")
+    if figure:
+        lines += [f"![RMSE reduction against PD per claim: shipped policy, training seeds, paper]({figure})", ""]
+    return "\n".join(lines)
+
+
 PERCEPTION_VALUES = {"aware_vs_trained_blind": "wind-aware vs trained blind",
                      "trained_oracle_vs_trained_blind": "oracle-trained vs trained blind"}
 PERCEPTION_SHARES = {"zeroing_share": "zeroing share (ours)", "trained_share": "trained-blind share"}
@@ -569,8 +634,9 @@ def read_ablations(folder: Path) -> dict[str, dict]:
 
 
 def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None,
-                 toy: bool = False) -> str:
-    """The whole results page: the preamble, then every section whose inputs exist. ``toy``: the
+                 toy: bool = False, summary_figure: str | None = None) -> str:
+    """The whole results page: the preamble, the summary (with ``summary_figure``, a link relative
+    to the page, when given), then every section whose inputs exist. ``toy``: the
     ``--quick`` run's page, which says so in its first line and shows only what it flew (no paper
     columns, ratios or the paper's episode counts)."""
     if toy:
@@ -583,6 +649,11 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
             parts.append(training_section(policy_manifests))
         return "\n".join(parts) + "\n"
     parts = [preamble.rstrip(), ""]
+    ablations = read_ablations(results_dir)
+    seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((results_dir / "seeds").glob("seed*"))}
+    seeds = {seed: r for seed, r in seeds.items() if r}
+    if ablations:
+        parts.append(summary_section(summary_rows(ablations, seeds), summary_figure))
     pd_file = results_dir / "pd_baseline.json"
     if pd_file.exists():
         parts.append(pd_calibration_section(json.loads(pd_file.read_text())))
@@ -593,12 +664,10 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
         parts.append(sensing_presets_section(runs))
     if policy_manifests:
         parts.append(training_section(policy_manifests))
-    ablations = read_ablations(results_dir)
     if ablations:
         parts.append(ablation_section(ablations))
-    seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((results_dir / "seeds").glob("seed*"))}
-    if any(seeds.values()):
-        parts.append(seeds_section({seed: r for seed, r in seeds.items() if r}))
+    if seeds:
+        parts.append(seeds_section(seeds))
     perception = results_dir / "perception_value.json"
     if perception.exists():
         parts.append(perception_section(json.loads(perception.read_text())))
