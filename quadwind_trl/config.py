@@ -102,7 +102,7 @@ class ControllerConfig:
     pos_error_limit_m: tuple[float, float, float] = (12.0, 12.0, 15.0)  # paper
     feedback: Literal["truth", "sensors", "estimate"] = "estimate"
     # The classical additions to the paper's PD (all off by default: the base law is the paper's
-    # PD, bit for bit). ``envs/controller.py`` gives the laws, ``BASE_CONTROLLERS`` the presets
+    # PD, bit for bit). ``envs/controller.py`` gives the laws, ``regimes.CLASSICAL_CONTROLLERS`` the ones
     # flown beside the RL and docs/simulator.md ("Classical base controllers") how they were tuned.
     # Position-error integral gain (1/s^3); the integral is clamped to +-integral_limit_m_s and
     # frozen on an axis while the tilt or thrust limit is active (conditional integration).

@@ -151,3 +151,38 @@ VALIDATION_SWEEPS = {
                           VERTICAL_RL, VALIDATION_DESIGN_SEED, stability_latin=True),
 }
 SWEEP_REGIME = {"horizontal": "horizontal", "vertical": "vertical", "ood": "horizontal"}  # whose policy flies it
+
+
+# The classical base controllers flown beside the RL (evaluation.ablation): the paper's PD with
+# integral action, with a disturbance observer, and with wind feed-forward (alone or with the
+# integral) on the estimate the policy sees, on zero (its blind twin) or on the true mean wind (its
+# oracle). Each regime's constants are the ones its validation search chose
+# (recipes/tune_base_controllers.py, results/base_search_<regime>.json; docs/simulator.md,
+# "Classical base controllers"): the integral gain Ki (1/s^3, every axis) of pid and pid_ff, and the
+# observer's filter time constant (s). The out-of-distribution sweep flies the horizontal ones.
+CLASSICAL_CHOICES = {
+    "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.05},
+    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.1},
+}
+CLASSICAL_CONTROLLERS = ("pid", "dob", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff", "pid_ff_blind", "pid_ff_oracle")
+
+
+def classical_controller(regime: str, name: str) -> tuple[dict, str]:
+    """``(ControllerConfig changes, base wind input)`` of classical controller ``name`` in ``regime``."""
+    if regime not in CLASSICAL_CHOICES:
+        raise ValueError(f"regime={regime!r}; allowed: {', '.join(repr(r) for r in CLASSICAL_CHOICES)}")
+    if name not in CLASSICAL_CONTROLLERS:
+        raise ValueError(f"classical controller {name!r}; allowed: {CLASSICAL_CONTROLLERS}")
+    chosen = CLASSICAL_CHOICES[regime]
+    law, _, twin = name.partition("_ff")
+    # every classical addition set, so that a config that already has some (a policy trained on
+    # another base) flies exactly this law
+    changes = {"ki_pos": (0.0, 0.0, 0.0), "disturbance": "none"}
+    if name == "pid":
+        return changes | {"ki_pos": (chosen["pid_ki"],) * 3}, "zero"
+    if name == "dob":
+        return changes | {"disturbance": "observer", "observer_tau_s": chosen["dob_tau_s"]}, "zero"
+    changes["disturbance"] = "wind_model"
+    if law == "pid":
+        changes["ki_pos"] = (chosen["pid_ff_ki"],) * 3
+    return changes, {"": "estimate", "_blind": "zero", "_oracle": "truth"}[twin]

@@ -1,6 +1,8 @@
 """The paired ablation: PD, wind-blind RL, wind-aware RL, a true-wind oracle, a policy trained
-without wind inputs and (given one) a policy trained with the true wind, on identical replayed
-episodes of the paper's evaluation sweeps; tables (JSON) and figures.
+without wind inputs and (given one) a policy trained with the true wind, and the classical
+controllers (PID, disturbance observer, wind feed-forward with its blind twin and oracle;
+``regimes.CLASSICAL_CONTROLLERS``), on identical replayed episodes of the paper's evaluation
+sweeps; tables (JSON) and figures.
 
     python recipes/ablation.py                                   # horizontal 225, vertical 144, OOD 90
     python recipes/ablation.py --sweeps horizontal --policy runs/ppo_horizontal/policy.pt
@@ -9,6 +11,7 @@ episodes of the paper's evaluation sweeps; tables (JSON) and figures.
     python recipes/ablation.py --sweeps horizontal --oracle-policy runs/ppo_horizontal_truth/policy.pt
     python recipes/ablation.py --verify results/ablation_horizontal.json --chunks 0:1
     python recipes/ablation.py --resummarize results/seeds/seed0/ablation_*.json
+    python recipes/ablation.py --controllers pd pid dob pd_ff pd_ff_blind pd_ff_oracle --results results/classical
 
 By default the shipped checkpoints are used (``quadwind_trl/checkpoints/policy_<regime>.pt``,
 ``policy_<regime>_trained_blind.pt`` and ``estimator_<regime>.pt``); without a trained-blind

@@ -1,5 +1,6 @@
 """The ablation's controllers: a policy trained with its wind inputs zeroed flies the same worlds as
-the others, and its comparison with the wind-aware policy is summarised beside the paper's."""
+the others, and its comparison with the wind-aware policy is summarised beside the paper's; the
+classical controllers fly those worlds too."""
 from __future__ import annotations
 
 import copy
@@ -14,8 +15,9 @@ from quadwind_trl.evaluation.ablation import episode_table, episode_table_from_j
 from quadwind_trl.evaluation.report import perception_tables
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import CHECKPOINT_DIR
+from quadwind_trl.evaluation.statistics import paired_summary
 from quadwind_trl.quick import SWEEP_QUICK
-from quadwind_trl.regimes import SWEEPS
+from quadwind_trl.regimes import SWEEPS, classical_controller
 from quadwind_trl.validation import load_checkpoint
 
 AWARE = CHECKPOINT_DIR / "policy_horizontal.pt"
@@ -152,3 +154,35 @@ def test_ablation_recipe_without_pd_is_refused_before_it_flies(tmp_path, monkeyp
         recipe.main()
     assert refused.value.code == 2 and "pd is required, every result is paired against it" in capsys.readouterr().err
     assert not (tmp_path / "results").exists()
+
+
+def test_classical_rows_are_summarised_against_pd_and_the_policy(tmp_path, episodes):
+    """The classical controllers fly the same worlds with no policy: the pid row is, to the bit, the
+    "pd" row (the base law alone) of a policy trained on that base; each classical row is paired
+    against PD and against the wind-aware policy, and the feed-forward on the estimate against its
+    blind twin (the estimate's worth to a law that cannot learn)."""
+    sweep, scenarios, override = episodes
+    scenarios = scenarios[:1]  # one world: what is checked is per episode, six flights of it are the cost
+    law, _ = classical_controller("horizontal", "pid")
+
+    def on_pid_base(payload: dict) -> None:
+        payload["env_spec"]["env_config"]["controller"].update({k: list(v) if isinstance(v, tuple) else v
+                                                                for k, v in law.items()})
+
+    estimator = load_estimator("horizontal")
+    controllers = ("pd", "aware", "pid", "pd_ff", "pd_ff_blind")
+    results = fly_controllers("horizontal", scenarios, AWARE, estimator, controllers, config_override=override,
+                              compile_step=False)
+    on_base = fly_controllers("horizontal", scenarios, _saved_as(tmp_path, "on_pid.pt", on_pid_base), estimator, ("pd",),
+                              config_override=override, compile_step=False)
+    for metric in ("rmse_xy", "rmse_z"):
+        assert torch.equal(getattr(on_base["pd"], metric), getattr(results["pid"], metric))
+    for name in ("pid", "pd_ff", "pd_ff_blind"):  # each law acts: none flies PD's episodes
+        assert not torch.equal(results[name].rmse_xy, results["pd"].rmse_xy)
+    summary = summarize_ablation(sweep.name, episode_table(scenarios, results), controllers)
+    xy = summary["rmse_xy"]
+    assert set(xy["aware_vs_classical"]) == {"pid", "pd_ff", "pd_ff_blind"}
+    assert xy["aware_vs_classical"]["pid"] == paired_summary(results["pid"].rmse_xy, results["aware"].rmse_xy)
+    assert xy["feedforward"]["pd_ff"]["estimate_value"] == paired_summary(results["pd_ff_blind"].rmse_xy,
+                                                                          results["pd_ff"].rmse_xy)
+    assert xy["pid"] == paired_summary(results["pd"].rmse_xy, results["pid"].rmse_xy)

@@ -224,3 +224,21 @@ def test_search_rows_fly_their_own_candidate():
 def test_bad_classical_settings_name_the_field(change, field):
     with pytest.raises(ValueError, match=field.replace("[", r"\[").replace("]", r"\]")):
         replace(EnvConfig(), controller=replace(ControllerConfig(), **change)).validate()
+
+
+def test_recipes_train_on_any_classical_base():
+    """``--base-controller``: the regime's classical law with its validated constants, and what its
+    wind feed-forward flies on; "pd" leaves the paper's cascade as it is."""
+    from quadwind_trl.regimes import CLASSICAL_CHOICES, CLASSICAL_CONTROLLERS
+    from quadwind_trl.rl.cli import with_base_controller
+
+    cfg = EnvConfig()
+    assert with_base_controller("vertical", cfg, "pd") == (cfg, "estimate")
+    pid_ff, wind = with_base_controller("vertical", cfg, "pid_ff")
+    assert wind == "estimate" and pid_ff.controller.disturbance == "wind_model"
+    assert pid_ff.controller.ki_pos == (CLASSICAL_CHOICES["vertical"]["pid_ff_ki"],) * 3
+    assert pid_ff.controller.kp_pos == cfg.controller.kp_pos  # the paper's PD underneath
+    assert with_base_controller("horizontal", cfg, "pd_ff_blind")[1] == "zero"
+    assert with_base_controller("horizontal", cfg, "pd_ff_oracle")[1] == "truth"
+    for name in CLASSICAL_CONTROLLERS:
+        with_base_controller("horizontal", cfg, name)[0].validate()

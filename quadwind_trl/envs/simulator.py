@@ -249,8 +249,10 @@ class QuadSimulator:
                     self.control_dt,
                 )
             nav_rot, nav_omega = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1))), meas["gyro"]
+        # the accelerometer as the law's feedback reads it: the true specific force with truth feedback
+        specific_force = body["specific_force"] if feedback == "truth" else meas["accel"]
         inputs = ControlInputs(pos=nav["pos"], vel=nav["vel"], rot=nav_rot, omega=nav_omega, ref=ref,
-                               specific_force=meas["accel"], thrust_applied=state["control", "cmd"][..., :1],
+                               specific_force=specific_force, thrust_applied=state["control", "cmd"][..., :1],
                                wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first)
         pd, base = self.controller(inputs, state.get("base", None))
 

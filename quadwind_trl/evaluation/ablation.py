@@ -5,7 +5,8 @@ world (turbulence field, sensor noise and bias, initial state) is bitwise the sa
 them (``docs/simulator.md``, exact replay; the flights go through
 :func:`~quadwind_trl.rl.paired.fly_paired`, as the trainer's evaluation against PD does):
 
-* ``pd``: the wind-blind PD baseline (zero residual);
+* ``pd``: the wind-blind PD baseline (zero residual); for a policy trained on another base
+  controller (``--base-controller``), that base law alone;
 * ``blind``: the trained policy with its two wind inputs forced to zero (``ZeroInputs``): the same
   weights, the wind channel removed at inference (the paper's "wind-blind RL");
 * ``aware``: the trained policy reading the frozen estimator's filtered wind (the paper's system);
@@ -17,7 +18,13 @@ them (``docs/simulator.md``, exact replay; the flights go through
   a policy trained with them also measures how much it leans on them);
 * ``trained_oracle``: a third policy, trained with the true mean wind (``--wind-input truth``) and
   flown with it (not in the paper: trained-oracle vs trained-blind is what a perfect estimate is
-  worth to a policy trained to use it).
+  worth to a policy trained to use it);
+* the classical base controllers (:data:`~quadwind_trl.regimes.CLASSICAL_CONTROLLERS`, not in the
+  paper), flown with no policy in the same worlds: ``pid`` (the PD with integral action), ``dob``
+  (a disturbance observer), ``pd_ff`` and ``pid_ff`` (wind feed-forward on the estimate the
+  policy sees), their blind twins ``*_ff_blind`` (the same law with the estimate at zero) and
+  oracles ``*_ff_oracle`` (the true mean wind): the strongest baseline a practitioner would fly,
+  and what the estimate is worth to a controller that cannot learn.
 
 Every policy flies with the env settings it trained with
 (:func:`~quadwind_trl.rl.envs.policy_env_settings`), its ``zero_inputs`` included; ``blind`` adds
@@ -26,6 +33,7 @@ config and without the same inputs as the wind-aware one, so that only the wind 
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Mapping, Sequence
 
@@ -38,12 +46,14 @@ from ..envs.trajectories import trajectory_ids, trajectory_name
 from ..estimator import EstimatorBundle
 from ..rl.envs import make_env, policy_env_settings
 from ..rl.paired import fly_paired, improvement
+from ..regimes import CLASSICAL_CONTROLLERS, classical_controller
 from ..rl.policy import load_policy
 from .grouping import summarize
 from .phases import phase_columns
 from .statistics import decompose, paired_summary
 
-CONTROLLERS = ("pd", "blind", "aware", "oracle", "trained_blind", "trained_oracle")
+RL_CONTROLLERS = ("pd", "blind", "aware", "oracle", "trained_blind", "trained_oracle")
+CONTROLLERS = RL_CONTROLLERS + CLASSICAL_CONTROLLERS
 # PD ignores its observation: "truth" spares it the estimator (the physics is the same either way)
 WIND_INPUT = {"pd": "truth", "blind": "zero", "aware": "estimate", "oracle": "truth", "trained_blind": "zero",
               "trained_oracle": "truth"}
@@ -108,8 +118,22 @@ def fly_controllers(
         settings = policy_env_settings(inputs["env_spec"], estimator)
         if estimate_every_s is not None:
             settings["estimate_every_s"] = estimate_every_s
+        if name in CLASSICAL_CONTROLLERS:  # the base law alone, on the estimate the policy sees (or none)
+            law, base_wind = classical_controller(regime, name)
+            settings["base_wind_input"] = base_wind
+            flown = replace(config, controller=replace(config.controller, **law))
+            env = make_env(regime, estimator if base_wind == "estimate" else None, n,
+                           wind_input="estimate" if base_wind == "estimate" else "truth", device=device, config=flown,
+                           vecnorm_state=inputs["vecnorm"], compile_step=compile_step, **settings)
+            return env, None
+        wind_input = WIND_INPUT[name]
+        if config.controller.needs_wind and settings["base_wind_input"] == "estimate" and wind_input == "truth":
+            if name == "pd":  # the residual's own base law, on the estimate it trained on
+                wind_input = "estimate"
+            else:  # a policy flown on the true wind runs no estimator: its feed-forward base flies the truth too
+                settings["base_wind_input"] = "truth"
         # "blind" is the aware policy with wind_input="zero": its wind channels join its zero_inputs
-        env = make_env(regime, estimator if WIND_INPUT[name] != "truth" else None, n, wind_input=WIND_INPUT[name],
+        env = make_env(regime, estimator if wind_input != "truth" else None, n, wind_input=wind_input,
                        device=device, config=config, vecnorm_state=inputs["vecnorm"], compile_step=compile_step, **settings)
         return env, None if name == "pd" else actor
 
@@ -221,6 +245,19 @@ def summarize_ablation(sweep_name: str, table: TensorDictBase, controllers: Sequ
         if {"trained_blind", "aware"} <= set(names):
             # aware vs the policy trained without wind inputs: perception's value, paired
             block["trained_perception"] = paired_summary(table[f"trained_blind_{metric}"], table[f"aware_{metric}"])
+        classical = [c for c in names if c in CLASSICAL_CONTROLLERS]
+        if "aware" in names and classical:
+            # the wind-aware policy against each classical controller, paired (positive: RL better)
+            block["aware_vs_classical"] = {c: paired_summary(table[f"{c}_{metric}"], table[f"aware_{metric}"])
+                                           for c in classical}
+        for law in ("pd_ff", "pid_ff"):
+            for twin, key in ((f"{law}_blind", "estimate_value"), (f"{law}_oracle", "oracle_value")):
+                if {law, twin} <= set(names):
+                    # the estimate's worth to a law that cannot learn: the feed-forward on the
+                    # estimate against its blind twin; a perfect estimate's: the oracle against the estimate
+                    pair = (table[f"{twin}_{metric}"], table[f"{law}_{metric}"]) if key == "estimate_value" else (
+                        table[f"{law}_{metric}"], table[f"{twin}_{metric}"])
+                    block.setdefault("feedforward", {}).setdefault(law, {})[key] = paired_summary(*pair)
         if {"trained_blind", "trained_oracle"} <= set(names):
             # the policy trained on the true wind vs the one trained without: a perfect estimate's value
             block["trained_oracle_vs_trained_blind"] = paired_summary(table[f"trained_blind_{metric}"],

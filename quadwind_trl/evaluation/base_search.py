@@ -11,7 +11,10 @@ what a search needs, and the chosen values are then flown on the test sweeps in 
 own layout.
 
 A candidate is scored as the trainer scores a policy (:func:`~quadwind_trl.rl.paired.validation_score`:
-the mean episode RMSE plus the mean of its worst tenth), and the search keeps the lowest score.
+the mean episode RMSE plus the mean of its worst tenth), and the search keeps the lowest score
+among the candidates that crash no more often than PD (:func:`select_candidate`): a crash ends an
+episode early, and its RMSE over the part flown can be lower than a whole flight's, so the score
+alone can prefer a gain that loses the vehicle.
 """
 from __future__ import annotations
 
@@ -123,3 +126,10 @@ def fly_candidates(
     res = fly(env, flights, progress=progress)
     return [CandidateResult(c, res.rmse_xy[i * m:(i + 1) * m], res.rmse_z[i * m:(i + 1) * m],
                             res.crashed[i * m:(i + 1) * m]) for i, c in enumerate(candidates)]
+
+
+def select_candidate(rows: Sequence[dict], pd_crashed: int) -> dict:
+    """The search table's row a family keeps: the lowest ``validation_score`` among the rows that
+    crashed no more often than PD (all rows, if every one did)."""
+    safe = [r for r in rows if r["crashed"] <= pd_crashed] or list(rows)
+    return min(safe, key=lambda r: r["validation_score"])

@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 from . import paper
+from .base_search import select_candidate
 from .perception import across_seeds
 
 
@@ -614,6 +615,70 @@ def sensing_presets_section(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
+FAMILY_LABEL = {"pid": "PD + integral (PID)", "dob": "PD + disturbance observer", "pid_ff": "PD + integral + wind feed-forward"}
+FIELD_LABEL = {"ki_pos": "K_i (1/s^3)", "observer_tau_s": "tau (s)"}
+POLICY_KINDS = (("wind-aware RL", "estimate"), ("trained-blind RL", "zero"), ("trained-oracle RL", "truth"))
+
+
+def _searched(value) -> str:
+    return f"{value[0]:g}" if isinstance(value, list) else f"{value:g}"
+
+
+def _seed_stats(values: list[float]) -> str:
+    return f"{sum(values) / len(values):+.1f} % ({min(values):+.1f} to {max(values):+.1f})"
+
+
+def classical_section(searches: dict[str, dict], manifests: dict[str, dict]) -> str:
+    """"Against classical controllers": each regime's validation search
+    (``results/base_search_<regime>.json``, recipes/tune_base_controllers.py), every candidate
+    against PD on the validation sweep, beside the PPO seeds' own validation evaluations against
+    the same PD on the same episodes (their kept policies' manifests)."""
+    lines = ["## Against classical controllers", "",
+             "The paper's PD has no integral action. The classical controllers a practitioner would fly (PD with integral",
+             "action, a disturbance observer, wind feed-forward on the estimate; docs/simulator.md, \"Classical base",
+             "controllers\") are tuned here on each regime's validation sweep, scored as the trainer scores a policy (mean",
+             "RMSE plus the mean of the worst tenth, lower is better; a family keeps its best candidate among those that",
+             "crash no more often than PD). Beside them, the PPO seeds' own evaluations on the",
+             "same validation episodes against the same PD (their kept checkpoints). These are validation flights, the",
+             "flights choices are made on; the test sweeps' rows come from the paired ablation.", ""]
+    for regime, search in searches.items():
+        pd = search["pd"]
+        lines += [f"### {regime.capitalize()} validation sweep ({search['episodes']} episodes)", "",
+                  f"`{search['command']}` at `{search['git_commit']}`, "
+                  f"{'compiled' if search.get('compile_step') else 'eager'} step. PD: xy {pd['rmse_xy']:.3f} m, "
+                  f"z {pd['rmse_z']:.3f} m, score {pd['validation_score']:.3f} m.", "",
+                  "| controller | searched value | score (m) | xy RMSE (m) | xy vs PD | z RMSE (m) | z vs PD | wins | crashed |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for family, block in search["families"].items():
+            label = FAMILY_LABEL.get(family, family)
+            kept = select_candidate(block["candidates"], pd["crashed"])
+            for row in block["candidates"]:
+                chosen = " **(chosen)**" if row is kept else ""
+                lines.append(f"| {label} | {FIELD_LABEL.get(block['field'], block['field'])} = {_searched(row['value'])}{chosen} | "
+                             f"{row['validation_score']:.3f} | {row['rmse_xy']:.3f} | {row['improvement_xy_pct']:+.1f} % | "
+                             f"{row['rmse_z']:.3f} | {row['improvement_z_pct']:+.1f} % | {row['wins']}/{row['episodes']} | "
+                             f"{row['crashed']} |")
+        runs = {kind: [m["metrics"] for name, m in manifests.items() if name.startswith(f"ppo_{regime}")
+                       and m.get("env_spec", {}).get("wind_input") == wind and m.get("metrics")] for kind, wind in POLICY_KINDS}
+        runs = {kind: ms for kind, ms in runs.items() if ms}
+        if runs:
+            lines += ["", "| PPO seeds (kept policies) | seeds | score (m): mean (range) | xy vs PD: mean (range) | "
+                      "z vs PD: mean (range) | crashed (sum) |", "|---|---|---|---|---|---|"]
+            for kind, ms in runs.items():
+                scores = [m["validation_score"] for m in ms]
+                lines.append(f"| {kind} | {len(ms)} | {sum(scores) / len(scores):.3f} ({min(scores):.3f} to {max(scores):.3f}) | "
+                             f"{_seed_stats([m['improvement_rmse_xy_pct'] for m in ms])} | "
+                             f"{_seed_stats([m['improvement_rmse_z_pct'] for m in ms])} | {sum(m['crashed'] for m in ms)} |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def read_searches(folder: Path) -> dict[str, dict]:
+    """The base-controller validation searches in ``folder``, by regime (those that exist)."""
+    return {regime: json.loads((folder / f"base_search_{regime}.json").read_text())
+            for regime in ("horizontal", "vertical") if (folder / f"base_search_{regime}.json").exists()}
+
+
 def policy_runs(runs_dir: Path, kept_dir: Path) -> tuple[dict[str, dict], dict[str, Path]]:
     """Every PPO run by name (``ppo_horizontal_seed0``, ...): its manifest, the run's own
     ``RUNS/<name>/policy.json`` else the kept copy ``KEPT/<name>.json`` (``results/policies/``, in
@@ -668,6 +733,9 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
         parts.append(ablation_section(ablations))
     if seeds:
         parts.append(seeds_section(seeds))
+    searches = read_searches(results_dir)
+    if searches:
+        parts.append(classical_section(searches, policy_manifests or {}))
     perception = results_dir / "perception_value.json"
     if perception.exists():
         parts.append(perception_section(json.loads(perception.read_text())))

@@ -18,7 +18,7 @@ from ..config import SENSING, EnvConfig, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..keys import INPUT_GROUPS, input_channels
 from ..quick import PPO_QUICK
-from ..regimes import PAPER_REWARD_W_Z, REWARD_W_Z, regime_config
+from ..regimes import CLASSICAL_CONTROLLERS, PAPER_REWARD_W_Z, REWARD_W_Z, classical_controller, regime_config
 from .config import LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from .paired import validation_scenarios
@@ -92,9 +92,20 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--sensing", default="navigation", choices=list(SENSING),
                    help="what the PD flies on (config.with_sensing): the nav filter as shipped (default), the same "
                         "sensors without bias walks, or the true state; an experiment, not the paper's vehicle")
+    p.add_argument("--base-controller", default="pd", choices=("pd",) + CLASSICAL_CONTROLLERS,
+                   help="the law the residual is added to (default: the paper's PD); a classical one "
+                        "(regimes.CLASSICAL_CONTROLLERS) with the constants its validation search chose for the regime")
     p.add_argument("--logger", default="csv", choices=["csv", "tensorboard"])
     p.add_argument("--no-progress", action="store_true")
     return p
+
+
+def with_base_controller(regime: str, config: EnvConfig, name: str) -> tuple[EnvConfig, str]:
+    """``(config, base wind input)``: ``config`` with the base controller ``name`` ("pd": as it is)."""
+    if name == "pd":
+        return config, "estimate"
+    law, base_wind = classical_controller(regime, name)
+    return replace(config, controller=replace(config.controller, **law)), base_wind
 
 
 def reward_weight(text: str) -> float:
@@ -148,10 +159,11 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     train; print and return the final manifest."""
     torch.set_num_threads(args.threads)
     try:
+        config, base_wind = with_base_controller(
+            regime, with_reward_w_z(with_sensing(regime_config(regime), args.sensing), args.reward_w_z), args.base_controller)
         spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
-                         config=with_reward_w_z(with_sensing(regime_config(regime), args.sensing), args.reward_w_z),
-                         compile_step=not args.eager,
+                         config=config, base_wind_input=base_wind, compile_step=not args.eager,
                          zero_inputs=input_channels(args.zero_inputs))
     except ValueError as err:  # a bad setting (e.g. --zero-inputs tilt): the message names the allowed values
         raise SystemExit(f"error: {err}") from None

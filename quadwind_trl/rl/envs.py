@@ -310,8 +310,8 @@ def recipe_estimate_every_s(tau_s: float, log_dt_s: float) -> float:
 
 def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> dict:
     """The :class:`RLEnvSpec` settings a saved policy trained with and must fly with, from its
-    checkpoint's ``env_spec``, as ``make_env`` keywords: ``ema_tau_s``, ``estimate_every_s`` and
-    ``zero_inputs``. Policies saved before the spec recorded a setting trained with: the tau their
+    checkpoint's ``env_spec``, as ``make_env`` keywords: ``ema_tau_s``, ``estimate_every_s``,
+    ``zero_inputs`` and ``base_wind_input``. Policies saved before the spec recorded a setting trained with: the tau their
     estimator's checkpoint held (the env then read it from there; else the default), the estimator
     at every log tick, no zeroed inputs."""
     tau = env_spec["ema_tau_s"] if "ema_tau_s" in env_spec else getattr(estimator, "ema_tau_s", None)
@@ -319,6 +319,7 @@ def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> d
         "ema_tau_s": DEFAULT_TAU_S if tau is None else float(tau),
         "estimate_every_s": float(env_spec.get("estimate_every_s", DEFAULT_ESTIMATE_EVERY_S)),
         "zero_inputs": tuple(env_spec.get("zero_inputs", ())),
+        "base_wind_input": env_spec.get("base_wind_input", "estimate"),
     }
 
 
