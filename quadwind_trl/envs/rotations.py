@@ -71,15 +71,17 @@ def euler_from_rotmat(r: Tensor) -> Tensor:
     return torch.stack((roll, pitch, yaw), -1)
 
 
-def quat_integrate(q: Tensor, omega_body: Tensor, dt: float) -> Tensor:
-    """Rotate ``q`` by a constant body rate over ``dt`` (exact exponential map), renormalised."""
-    half_angle = 0.5 * dt * omega_body
-    theta = half_angle.norm(dim=-1, keepdim=True)
+def quat_integrate(q: Tensor, omega_body: Tensor, half_dt: Tensor | float) -> Tensor:
+    """Rotate ``q`` by a constant body rate over ``2 half_dt`` (exact exponential map),
+    renormalised. ``half_dt``: half the step, a number or (for an eager caller that steps often:
+    no conversion per use) a 0-dim tensor of the rate's dtype."""
+    half_angle = half_dt * omega_body
+    theta = torch.linalg.vector_norm(half_angle, dim=-1, keepdim=True)
     # sin(theta)/theta, with its Taylor series where theta is tiny (no division by zero)
     sinc = torch.where(theta < 1e-4, 1.0 - theta * theta / 6.0, torch.sin(theta) / theta.clamp_min(1e-12))
     dq = torch.cat((torch.cos(theta), sinc * half_angle), -1)
     out = quat_mul(q, dq)
-    return out / out.norm(dim=-1, keepdim=True)
+    return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
 
 
 # Small products as broadcast multiply-and-sum rather than ``@``: as fast for 3x3 and 4x4, fused

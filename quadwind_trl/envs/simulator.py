@@ -48,7 +48,7 @@ from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotat
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
 from .trajectories import TrajectoryLibrary, registered_patterns
-from .vehicle import RigidBody, VehicleParams, allocate, physics_step
+from .vehicle import RigidBody, VehicleParams, allocate, physics_step, step_constants
 
 _TRAJECTORY_CACHE: dict = {}
 
@@ -71,6 +71,7 @@ class QuadSimulator:
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         c, dev = self.cfg, self.device
         self.vehicle = VehicleParams.from_config(c.vehicle, dev)
+        self.physics_constants = step_constants(self.vehicle, c.timing.physics_dt_s, dev)
         self.controller = ControllerParams.from_config(c.controller, c.vehicle, dev)
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
@@ -164,7 +165,8 @@ class QuadSimulator:
         wind_total = state["wind", "total"]
         imu_sub = []  # what the IMU instruments read at their intermediate sample instants
         for i in range(1, self.cfg.timing.control_substeps + 1):
-            body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s)
+            body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s,
+                                                self.physics_constants)
             if i in self.imu_substeps:
                 imu_sub.append(TensorDict(gyro=body.omega, accel=specific_force, batch_size=state.batch_size))
         n = state.batch_size
