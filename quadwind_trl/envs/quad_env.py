@@ -1,6 +1,7 @@
 """``QuadWindEnv``: the batched quadrotor-in-turbulence simulator as a native TorchRL env."""
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -166,6 +167,10 @@ class QuadWindEnv(EnvBase):
         if compile_step:
             _allow_compiled_envs()
         self._advance = torch.compile(self._held_control_step, dynamic=False) if compile_step else self._held_control_step
+        # a decision's first control step starts with no row ended, so its merge would select the
+        # whole new state: eagerly that is a select per state leaf, skipped; compiled, the merge
+        # costs nothing and one graph serves every control step of the hold
+        self._first_advance = self._advance if compile_step else functools.partial(self._held_control_step, merge=False)
         self.params: TensorDict | None = None
         self.state: TensorDict | None = None
         self._make_specs()
@@ -220,18 +225,20 @@ class QuadWindEnv(EnvBase):
         return out
 
     def _held_control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor, reward: torch.Tensor,
-                           steps: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor):
+                           steps: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor, merge: bool = True):
         """One control step of a held action, with the task's view of it, merged branch-free into
         the decision's running totals ``(state, reward sum, steps, terminated, truncated)``: a row
         whose episode ended earlier in the hold keeps its state and totals. Step and merge are one
         function so that, compiled, they are one graph (no eager merge of every state leaf per
-        control step); the params do not change within an episode and are not merged."""
+        control step); the params do not change within an episode and are not merged.
+        ``merge=False``: no row has ended (the decision's first control step), the new state is
+        every row's."""
         running = ~(terminated | truncated)
         new = self.sim.step(params, state, action)
         new_terminated, new_truncated = self.task.done(params, new)
         new_reward = self.task.step_reward(params, state, new)
         return (
-            new.where(running.reshape(-1), state),
+            new.where(running.reshape(-1), state) if merge else new,
             reward + torch.where(running, new_reward, 0.0),
             steps + running.to(steps.dtype),
             torch.where(running, new_terminated, terminated),
@@ -247,8 +254,9 @@ class QuadWindEnv(EnvBase):
         steps = torch.zeros(n, 1, device=dev)
         terminated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         truncated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
-        for _ in range(self.config.timing.hold_control_steps):
-            state, reward, steps, terminated, truncated = self._advance(
+        for k in range(self.config.timing.hold_control_steps):
+            advance = self._advance if k else self._first_advance
+            state, reward, steps, terminated, truncated = advance(
                 self.params, state, action, reward, steps, terminated, truncated)
         self.state = state
         out = self._observation(state)
