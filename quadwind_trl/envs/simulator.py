@@ -72,6 +72,7 @@ class QuadSimulator:
         c, dev = self.cfg, self.device
         self.vehicle = VehicleParams.from_config(c.vehicle, dev)
         self.physics_constants = step_constants(self.vehicle, c.timing.physics_dt_s, dev)
+        self._level = torch.tensor([1.0, 0.0, 0.0, 0.0], device=dev)  # the attitude a broken row is parked in
         self.controller = ControllerParams.from_config(c.controller, c.vehicle, dev)
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
@@ -168,23 +169,23 @@ class QuadSimulator:
             body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s,
                                                 self.physics_constants)
             if i in self.imu_substeps:
-                imu_sub.append(TensorDict(gyro=body.omega, accel=specific_force, batch_size=state.batch_size))
+                imu_sub.append((body.omega, specific_force))
         n = state.batch_size
-        new = TensorDict(
-            step=state["step"] + 1,
-            body=TensorDict(**body._asdict(), specific_force=specific_force, batch_size=n),  # initial()'s key order
-            wind=state["wind"],
-            sensors=state["sensors"],
-            control=TensorDict(ff=ff, cmd=cmd, **monitor, batch_size=n),  # initial()'s key order
-            nav=state["nav"],
-            batch_size=n,
-        )
-        new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, 1) if imu_sub else None)
-        b = new["body"]
-        finite = torch.stack([torch.isfinite(b[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
+        finite = torch.isfinite(torch.cat((body.pos, body.vel, body.quat, body.omega), -1)).all(-1, keepdim=True)
+        imu_truth_sub = None if not imu_sub else _tensordict(torch.Size([*n, len(imu_sub)]), {
+            "gyro": torch.stack([gyro for gyro, _ in imu_sub], 1), "accel": torch.stack([accel for _, accel in imu_sub], 1)})
+        new = _tensordict(n, {
+            "step": state["step"] + 1,
+            "body": _tensordict(n, {**body._asdict(), "specific_force": specific_force}),  # initial()'s key order
+            "wind": state["wind"],
+            "sensors": state["sensors"],
+            "control": _tensordict(n, dict(ff=ff, cmd=cmd, **monitor)),  # initial()'s key order
+            "nav": state["nav"],
+        })
+        new = self._observe_instant(params, new, first=False, imu_truth_sub=imu_truth_sub)
         new["finite"] = finite
         # contiguous leaves, as initial() returns: a compiled step is guarded on its input's strides
-        return _sanitize(new, ~finite).apply(Tensor.contiguous)
+        return _contiguous(_sanitize(new, ~finite, self.physics_constants.zero, self._level))
 
     def _cos_tilt(self, state: TensorDict) -> Tensor:
         """``[N, 1]`` cosine of the tilt from vertical in the attitude the PD flies on: the body's,
@@ -237,15 +238,31 @@ class QuadSimulator:
         pd = pd_control(nav["pos"], nav["vel"], nav_rot, nav_omega, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw,
                         ref.yaw_rate, self.controller)
 
-        out = state.clone(recurse=False)
-        wind_state.update(dict(mean=mean, total=total))
-        sensor_state[MEAS_KEY] = meas
-        out.update(dict(wind=wind_state, sensors=sensor_state, nav=nav))
-        out["ref"] = TensorDict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw, batch_size=state.batch_size)
-        control = out["control"].clone(recurse=False)
-        control.update(dict(pd_wrench=pd.wrench, tilt_cmd=pd.tilt_cmd, tilt_saturated=pd.tilt_saturated))
-        out["control"] = control
-        return out
+        n = state.batch_size
+        out = dict(state.items())
+        out["wind"] = _tensordict(n, {**dict(wind_state.items()), "mean": mean, "total": total})
+        out["sensors"] = _tensordict(n, {**dict(sensor_state.items()), MEAS_KEY: meas})
+        out["nav"] = nav
+        out["ref"] = _tensordict(n, dict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw))
+        out["control"] = _tensordict(n, {**dict(state["control"].items()), "pd_wrench": pd.wrench, "tilt_cmd": pd.tilt_cmd,
+                                         "tilt_saturated": pd.tilt_saturated})
+        return _tensordict(n, out)
+
+
+def _tensordict(batch_size: torch.Size, entries: dict) -> TensorDict:
+    """A TensorDict of the simulator's own entries (tensors and TensorDicts of batch
+    ``batch_size`` on its device), built without the constructor's per-entry checks: a step
+    builds a dozen, and at small batches the checks cost more than the arithmetic (compiled,
+    ``_new_unsafe`` is the constructor)."""
+    return TensorDict._new_unsafe(entries, batch_size=batch_size)
+
+
+def _contiguous(td: TensorDict) -> TensorDict:
+    """``td.apply(Tensor.contiguous)``, out of place, without ``apply``'s per-call machinery (a
+    tenth of the eager step at one row)."""
+    return TensorDict._new_unsafe(
+        {k: _contiguous(v) if is_tensor_collection(v) else v.contiguous() for k, v in td.items()},
+        batch_size=td.batch_size, device=td.device)
 
 
 def _scatter_rows(full: TensorDict, rows: Tensor, part: TensorDict) -> TensorDict:
@@ -254,32 +271,31 @@ def _scatter_rows(full: TensorDict, rows: Tensor, part: TensorDict) -> TensorDic
     return full.apply(lambda whole, new: whole.index_copy(0, rows, new), part)
 
 
-def _sanitize(state: TensorDict, broken: Tensor) -> TensorDict:
-    """Rows whose physics went non-finite are parked at their reference, level and at rest, so
-    nothing non-finite leaves the simulator (the task terminates them in the same step, on
-    ``state["finite"]``). Branch-free: no host synchronisation in the step."""
+def _sanitize(state: TensorDict, broken: Tensor, zero: Tensor, level: Tensor) -> TensorDict:
+    """Rows whose physics went non-finite are parked at their reference, level (quaternion
+    ``level``) and at rest, so nothing non-finite leaves the simulator (the task terminates them
+    in the same step, on ``state["finite"]``). Branch-free: no host synchronisation in the step.
+    ``zero``: a 0-dim zero of the state's dtype."""
+    n = state.batch_size
     body = state["body"]
-    level = torch.zeros_like(body["quat"])
-    level[..., 0] = 1.0
-    fixes = {
-        "pos": state["ref", "pos"],
-        "pos_carry": torch.zeros_like(body["pos_carry"]),
-        "vel": torch.zeros_like(body["vel"]),
-        "quat": level,
-        "omega": torch.zeros_like(body["omega"]),
-        "specific_force": torch.zeros_like(body["specific_force"]),
-    }
-    out = state.clone(recurse=False)
-    out["body"] = body.clone(recurse=False).update({k: torch.where(broken, v, body[k]) for k, v in fixes.items()})
+    fixes = {"pos": state["ref", "pos"], "pos_carry": zero, "vel": zero, "quat": level, "omega": zero, "specific_force": zero}
+    out = dict(state.items())
+    out["body"] = _tensordict(n, {k: torch.where(broken, fixes[k], v) if k in fixes else v for k, v in body.items()})
+    # the measurements (a sub-tensordict of named entries), the wrenches and the wind are zeroed,
+    # packed side by side: three ops, not three per entry
     zeroed = {"sensors": (MEAS_KEY,), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
-
-    def zero(v: Tensor) -> Tensor:
-        return torch.where(broken, 0.0, v.nan_to_num())
-
-    for group, keys in zeroed.items():
-        sub = state[group].clone(recurse=False)
-        # the measurements are a sub-tensordict of named entries: zeroed entry by entry
-        for k in keys:  # set, not update: update would write into the shared sub-tensordict
-            sub.set(k, sub[k].apply(zero) if is_tensor_collection(sub[k]) else zero(sub[k]))
-        out[group] = sub
-    return out
+    parts = [(group, key, entry) for group, keys in zeroed.items() for key in keys
+             for entry in (state[group, key].keys() if is_tensor_collection(state[group, key]) else (None,))]
+    leaves = [state[group, key] if entry is None else state[group, key, entry] for group, key, entry in parts]
+    packed = torch.where(broken, zero, torch.cat(leaves, -1).nan_to_num())
+    groups = {group: dict(state[group].items()) for group in zeroed}
+    nested: dict[tuple[str, str], dict[str, Tensor]] = {}
+    for (group, key, entry), leaf in zip(parts, packed.split([leaf.shape[-1] for leaf in leaves], -1)):
+        if entry is None:
+            groups[group][key] = leaf
+        else:
+            nested.setdefault((group, key), {})[entry] = leaf
+    for (group, key), entries in nested.items():
+        groups[group][key] = _tensordict(n, entries)
+    out.update({group: _tensordict(n, entries) for group, entries in groups.items()})
+    return _tensordict(n, out)
