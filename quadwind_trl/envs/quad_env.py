@@ -269,21 +269,23 @@ class QuadWindEnv(EnvBase):
     # --- helpers --------------------------------------------------------------------------------
 
     def _observation(self, s: TensorDict) -> TensorDict:
-        obs = TensorDict(
-            {
-                MEAS_KEY: s["sensors", MEAS_KEY],
-                "pos_error": s["nav", "pos"] - s["ref", "pos"],
-                "tilt_saturated": s["control", "tilt_saturated"],
-                "step": s["step"].unsqueeze(-1),
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        entries = {
+            MEAS_KEY: dict(s["sensors", MEAS_KEY].items()),
+            "pos_error": s["nav", "pos"] - s["ref", "pos"],
+            "tilt_saturated": s["control", "tilt_saturated"],
+            "step": s["step"].unsqueeze(-1),
+        }
         for key, (source, _) in _STATE_VIEWS.items():
-            obs[key] = s[source]
+            *parents, name = (key,) if isinstance(key, str) else key
+            node = entries
+            for parent in parents:
+                node = node.setdefault(parent, {})
+            node[name] = s[source]
         if self.config.residual.monitor is not None:
-            obs[MONITOR_KEY] = s["control", "monitor_left"] > 0
-        return obs
+            entries[MONITOR_KEY] = s["control", "monitor_left"] > 0
+        # without the constructor's per-entry checks (they cost more than the step's arithmetic at
+        # small batches): every entry is the simulator's, of batch [N] on this env's device
+        return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=self.device)
 
     def sim_state(self, key: NestedKey) -> torch.Tensor:
         """A copy of one entry of the simulator's state or, failing that, of its per-episode
