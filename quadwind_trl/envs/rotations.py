@@ -92,9 +92,10 @@ def atan2(y: Tensor, x: Tensor) -> Tensor:
 
 def euler_from_rotmat(r: Tensor) -> Tensor:
     """``[..., 3]`` Z-Y-X Euler angles (roll, pitch, yaw) in radians."""
-    roll = atan2(r[..., 2, 1], r[..., 2, 2])
+    # roll and yaw in one atan2 of two columns: elementwise, and its atan rounds an element the
+    # same wherever it sits in a tensor
+    roll, yaw = atan2(torch.stack((r[..., 2, 1], r[..., 1, 0]), -1), torch.stack((r[..., 2, 2], r[..., 0, 0]), -1)).unbind(-1)
     pitch = torch.asin(torch.clamp(-r[..., 2, 0], -1.0, 1.0))
-    yaw = atan2(r[..., 1, 0], r[..., 0, 0])
     return torch.stack((roll, pitch, yaw), -1)
 
 
