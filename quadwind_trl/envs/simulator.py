@@ -222,6 +222,8 @@ class QuadSimulator:
             nav = TensorDict(pos=pos, vel=body["vel"], baro_offset=torch.zeros_like(pos[..., 2:]), batch_size=state.batch_size)
             nav_rot, nav_omega = rot, body["omega"]
         else:
+            # the measured attitude as a rotation, once: the filter's prediction and the PD read it
+            nav_rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
             if feedback == "sensors" or first:
                 nav = init_navigation(meas)
             else:
@@ -233,8 +235,9 @@ class QuadSimulator:
                     self.sensors.ticks(step, "baro_alt"),
                     self.navigation,
                     self.control_dt,
+                    rot=nav_rot,
                 )
-            nav_rot, nav_omega = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1))), meas["gyro"]
+            nav_omega = meas["gyro"]
         pd = pd_control(nav["pos"], nav["vel"], nav_rot, nav_omega, ref.pos, ref.vel, ref.acc, ref.jerk, ref.yaw,
                         ref.yaw_rate, self.controller)
 
