@@ -63,33 +63,53 @@ def _mix32(x: Tensor, c: _Numbers) -> Tensor:
     return x ^ (x >> c.shift16)
 
 
+def stream_key(key: Tensor, stream: int) -> Tensor:
+    """The part of :func:`hash_bits` that depends on the key and the stream alone: ``[...]``
+    int64, an episode's constant where the key is its seed (a caller that draws every step
+    keeps it and draws with :func:`keyed_normal`)."""
+    key = key.to(torch.int64)
+    c = _numbers(key.device)
+    x = _mix32((key & c.mask) ^ ((stream * 0x9E3779B1) & _MASK32), c)
+    return _mix32(x ^ ((key >> c.shift32) & c.mask), c)
+
+
+def keyed_bits(keyed: Tensor, counter: Tensor | int, num: int) -> Tensor:
+    """:func:`hash_bits` of a :func:`stream_key`."""
+    c = _numbers(keyed.device)
+    counter = torch.as_tensor(counter, dtype=torch.int64, device=keyed.device)
+    x = _mix32((keyed ^ ((counter & c.mask) * c.counter_mix & c.mask)) & c.mask, c)
+    x = _mix32(x ^ ((counter >> c.shift32) & c.mask), c)
+    return _mix32((x.unsqueeze(-1) + _column_terms(num, keyed.device)) & c.mask, c)
+
+
+def keyed_uniform(keyed: Tensor, counter: Tensor | int, num: int) -> Tensor:
+    """:func:`hash_uniform` of a :func:`stream_key`."""
+    c = _numbers(keyed.device)
+    return ((keyed_bits(keyed, counter, num) >> c.shift8).to(torch.float32) + c.half) * c.ulp24
+
+
+def keyed_normal(keyed: Tensor, counter: Tensor | int, num: int) -> Tensor:
+    """:func:`hash_normal` of a :func:`stream_key`."""
+    c = _numbers(keyed.device)
+    u = keyed_uniform(keyed, counter, 2 * num)
+    radius = torch.sqrt(c.minus_two * torch.log(u[..., :num]))
+    return radius * torch.cos(c.two_pi * u[..., num:])
+
+
 def hash_bits(key: Tensor, counter: Tensor | int, stream: int, num: int) -> Tensor:
     """``[..., num]`` uniformly distributed 32-bit integers (held in int64).
 
     ``key`` and ``counter`` are int64 tensors of the same (batch) shape, or ``counter`` a
     Python int; ``stream`` separates independent uses of one key (a sensor, the initial state).
     """
-    key = key.to(torch.int64)
-    c = _numbers(key.device)
-    counter = torch.as_tensor(counter, dtype=torch.int64, device=key.device)
-    x = _mix32((key & c.mask) ^ ((stream * 0x9E3779B1) & _MASK32), c)
-    x = _mix32(x ^ ((key >> c.shift32) & c.mask), c)
-    x = _mix32((x ^ ((counter & c.mask) * c.counter_mix & c.mask)) & c.mask, c)
-    x = _mix32(x ^ ((counter >> c.shift32) & c.mask), c)
-    x = _mix32((x.unsqueeze(-1) + _column_terms(num, key.device)) & c.mask, c)
-    return x
+    return keyed_bits(stream_key(key, stream), counter, num)
 
 
 def hash_uniform(key: Tensor, counter: Tensor | int, stream: int, num: int) -> Tensor:
     """``[..., num]`` float32 uniforms in the open interval (0, 1), 24-bit resolution."""
-    c = _numbers(key.device)
-    bits = hash_bits(key, counter, stream, num)
-    return ((bits >> c.shift8).to(torch.float32) + c.half) * c.ulp24
+    return keyed_uniform(stream_key(key, stream), counter, num)
 
 
 def hash_normal(key: Tensor, counter: Tensor | int, stream: int, num: int) -> Tensor:
     """``[..., num]`` float32 standard normals (Box-Muller on two hashed uniforms per value)."""
-    c = _numbers(key.device)
-    u = hash_uniform(key, counter, stream, 2 * num)
-    radius = torch.sqrt(c.minus_two * torch.log(u[..., :num]))
-    return radius * torch.cos(c.two_pi * u[..., num:])
+    return keyed_normal(stream_key(key, stream), counter, num)

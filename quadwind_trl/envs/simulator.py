@@ -3,7 +3,8 @@
 ``params`` holds what is fixed for an episode, written only when it starts: the scenario
 (``params["scenario"]``, the fields of ``SCENARIO_FIELDS``), its schedule (``pattern_start``,
 ``end_step``), the atmosphere's per-episode constants (``params["wind"]``: profile, field maps,
-mode phases and amplitudes or cube) and the sensor noise seed (``params["sensors"]``).
+mode phases and amplitudes or cube) and the sensor noise seed with its streams' hash keys
+(``params["sensors"]``).
 ``state`` holds what a step changes, one sub-tensordict per concept:
 
 * ``step`` [N]: the control-step counter; ``finite`` [N, 1]: the physics stayed finite;
