@@ -160,12 +160,14 @@ class RotorOperands(NamedTuple):
     hover_inflow: Tensor | float
     descent_limit: Tensor | float  # -hover_inflow: the clamp of the climb ratio
     static_ct: Tensor | float
+    one: Tensor | float
+    advance_lift: Tensor | float  # 3/2: C_T's growth with mu^2
 
 
 def rotor_operands(r: RotorAero, device: torch.device | str | None = None) -> RotorOperands:
     """``r``'s operands: Python floats without ``device``, else float32 0-dim tensors on it."""
     s = r.half_solidity_lift
-    values = RotorOperands(r.radius, s, s * r.pitch / 3.0, 0.5 * s, r.hover_inflow, -r.hover_inflow, r.static_ct)
+    values = RotorOperands(r.radius, s, s * r.pitch / 3.0, 0.5 * s, r.hover_inflow, -r.hover_inflow, r.static_ct, 1.0, 1.5)
     if device is None:
         return values
     return RotorOperands(*(torch.tensor(v, dtype=torch.float32, device=device) for v in values))
@@ -180,7 +182,7 @@ def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero |
     tip_speed = (rotor_speed * o.radius).clamp_min(1.0)
     climb = (air_rel_body[..., 2:] / tip_speed).clamp_min(o.descent_limit)
     mu2 = (air_rel_body[..., :2].square().sum(-1, keepdim=True) / tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
-    ct_blade = o.blade_ct * (1.0 + 1.5 * mu2)  # C_T before the inflow term
+    ct_blade = o.blade_ct * (o.one + o.advance_lift * mu2)  # C_T before the inflow term
     inflow = torch.as_tensor(o.hover_inflow, dtype=climb.dtype, device=climb.device).expand_as(climb)
     for _ in range(_INFLOW_NEWTON_STEPS):
         ct = ct_blade - o.inflow_ct * inflow
@@ -189,7 +191,7 @@ def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero |
         # a Python float over a tensor computes): no Python number operand in the loop
         twice, cube = speed + speed, speed**3
         residual = inflow - climb - ct / twice
-        slope = 1.0 + (twice + twice).reciprocal() * o.half_solidity_lift + ct * inflow / (cube + cube)
+        slope = o.one + (twice + twice).reciprocal() * o.half_solidity_lift + ct * inflow / (cube + cube)
         inflow = inflow - residual / slope
     # beyond zero thrust (inflow faster than the blades' pitch: windmill state) a fixed-pitch
     # propeller brakes rather than pulls; the model stops at zero thrust
