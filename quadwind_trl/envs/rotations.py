@@ -64,6 +64,15 @@ def quat_to_rotmat(q: Tensor) -> Tensor:
     return torch.where(t.diagonal, t.one - twice, twice).unflatten(-1, (3, 3))
 
 
+def body_z_vertical(q: Tensor) -> Tensor:
+    """``[..., 1]``: ``quat_to_rotmat(q)[..., 2, 2:3]``, the vertical component of the body z axis
+    (``1 - 2 (xx + yy)``, the same bits), without the other eight entries."""
+    xy = q[..., 1:3]
+    squares = xy * xy
+    half = squares[..., :1] + squares[..., 1:]
+    return 1.0 - (half + half)
+
+
 def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
     """Z-Y-X (yaw, then pitch, then roll) Euler angles in radians to a quaternion."""
     cr, sr = torch.cos(roll / 2), torch.sin(roll / 2)
