@@ -9,15 +9,18 @@ parseable line::
 
     env_throughput N=4096 compile=True atmosphere=full sensors=True threads=1 workers=1 hold=1
         episode_s=200 resets_per_env_step=0.205 control_steps_per_s=... steady_control_steps_per_s=...
-        partial_reset_ms=... partial_reset_in_control_steps=... peak_rss_mb=... load_1min=...
+        steady_ms_per_control_step=... aten_calls_per_control_step=... partial_reset_ms=...
+        partial_reset_in_control_steps=... peak_rss_mb=... load_1min=...
 
 ``control_steps_per_s`` is what a user's rollout gets: steps through ``step_and_maybe_reset`` with
 episodes ending at the rate a batch of de-synchronised ``--episode-s`` episodes has (``N /
 (episode_s x 100 Hz)`` rows per control step; a bench run is far shorter than one episode, so rows
 are ended by marking them done, cycling through the batch). ``steady_control_steps_per_s`` is the
-same loop with no episode ending. ``partial_reset_ms`` is one ``env.reset`` of a single row
-(``"_reset"`` mask), ``partial_reset_in_control_steps`` the same in control steps of the steady
-loop.
+same loop with no episode ending, ``steady_ms_per_control_step`` its time per control step of all
+N rows, and ``aten_calls_per_control_step`` the ATen operators it calls per control step
+(``torch.profiler``, outside the timed loops; one process only). ``partial_reset_ms`` is one
+``env.reset`` of a single row (``"_reset"`` mask), ``partial_reset_in_control_steps`` the same in
+control steps of the steady loop.
 ``--workers W`` splits the N rows over W single-threaded simulator processes
 (:func:`quadwind_trl.envs.parallel.parallel_env`; ``peak_rss_mb`` is then the parent's alone);
 ``--hold K`` makes one env step K control steps, as the RL stack's decisions (K = 10); figures
@@ -104,6 +107,19 @@ def _rollout(env, td, steps: int, resets_per_step: float) -> tuple[float, object
     return time.perf_counter() - start, td
 
 
+def aten_calls_per_control_step(env, td, steps: int = 5) -> tuple[float, object]:
+    """ATen operator calls per control step of the steady loop, counted by ``torch.profiler``:
+    the calls the Python code makes, not the ones an operator makes inside itself (``mul`` with
+    a Python number counts once, not with its ``to``/``_to_copy``/``copy_``)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        _, td = _rollout(env, td, steps, 0.0)
+    top = [e for e in prof.events() if e.name.startswith("aten::")
+           and (e.cpu_parent is None or not e.cpu_parent.name.startswith("aten::"))]
+    return len(top) / (steps * env.config.timing.hold_control_steps), td
+
+
 def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds: float, episode_s: float,
             workers: int, hold: int, threads: int, device: str) -> dict:
     cfg = make_config(atmosphere, sensors)
@@ -123,6 +139,7 @@ def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds:
         dt, td = _rollout(env, td, 10, 0.0)
         elapsed, steps = elapsed + dt, steps + 10
     steady = steps * hold * n / elapsed
+    aten_calls, td = aten_calls_per_control_step(env, td) if workers == 1 else (None, td)
     # one partial reset of a single row, as step_and_maybe_reset issues it
     reset_times = []
     for i in range(5):
@@ -146,6 +163,8 @@ def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds:
         "resets_per_env_step": round(resets_per_step, 3),
         "control_steps_per_s": round(steps * hold * n / elapsed),
         "steady_control_steps_per_s": round(steady),
+        "steady_ms_per_control_step": round(1e3 * n / steady, 3),  # all N rows
+        "aten_calls_per_control_step": None if aten_calls is None else round(aten_calls),
         "partial_reset_ms": round(1e3 * reset_s, 2),
         "partial_reset_in_control_steps": round(reset_s / (n / steady), 2),
     }

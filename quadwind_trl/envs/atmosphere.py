@@ -266,19 +266,19 @@ class Atmosphere:
             local = [x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2] + params["cube_offset"][..., c] for c in range(3)]
             bx, by, bz = self._interpolate_cube(params["cube"], local).unbind(-1)
             return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
-        # per row, once: the position in the skeleton frame in length scales, [..., N, 1, 3]; the
+        # per row, once: the position in the skeleton frame in length scales, [..., N, M, 3]; the
         # [..., N, M] phase below then reads three numbers per row (before, the compiled kernel
-        # recomputed each row's rotation for every mode)
-        scaled = torch.stack(
-            [(x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2]).unsqueeze(-1) * params["k_scale"] for c in range(3)], -1
-        )  # fmt: skip
+        # recomputed each row's rotation for every mode). The three components of each matrix
+        # product at once: the same operations on every element, a third of the eager ops
+        local = x.unsqueeze(-1) * m_in[..., 0] + y.unsqueeze(-1) * m_in[..., 1] + z.unsqueeze(-1) * m_in[..., 2]
+        scaled = local.unsqueeze(-2) * params["k_scale"].unsqueeze(-1)
         w = self.wavevector
         # theta = phase + sum_c scaled_c kappa_m d_mc: the operations and order of the per-mode
         # form, so the same bits eager and compiled
         theta = params["phase"] + scaled[..., 0] * w[:, 0] + scaled[..., 1] * w[:, 1] + scaled[..., 2] * w[:, 2]
         modes = torch.cos(theta) * params["amplitude"]
-        bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1) for c in range(3))  # skeleton frame
-        return torch.stack([m_out[..., r, 0] * bx + m_out[..., r, 1] * by + m_out[..., r, 2] * bz for r in range(3)], -1)
+        bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1, keepdim=True) for c in range(3))  # skeleton frame
+        return m_out[..., 0] * bx + m_out[..., 1] * by + m_out[..., 2] * bz
 
     def _interpolate_cube(self, cube: Tensor, local: list[Tensor]) -> Tensor:
         """Trilinear interpolation ``[..., N, 3]`` of bank cubes ``cube`` ``[N]`` at skeleton-frame

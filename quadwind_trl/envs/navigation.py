@@ -54,12 +54,15 @@ def update_navigation(
     baro_tick: Tensor,
     p: NavigationParams,
     dt: float,
+    rot: Tensor | None = None,
 ) -> TensorDict:
     """One control step: predict over ``dt`` with ``accel_mean`` ``[N, 3]`` (the body-frame
     accelerometer samples of the step, averaged), then correct with the sensors (``meas``: their
-    named entries) that ticked (bool ``[N, 1]`` masks)."""
+    named entries) that ticked (bool ``[N, 1]`` masks). ``rot``: the measured attitude's rotation
+    matrix, if the caller has it already (it is computed from ``meas`` otherwise)."""
     gps_pos, gps_vel, baro = meas["gps_pos"], meas["gps_vel"], meas["baro_alt"]
-    rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
+    if rot is None:
+        rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
     acc = rotate(rot, accel_mean) - accel_mean.new_tensor([0.0, 0.0, GRAVITY_M_S2])
     vel = nav["vel"] + dt * acc
     pos = nav["pos"] + dt * vel

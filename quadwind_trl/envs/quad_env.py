@@ -1,11 +1,13 @@
 """``QuadWindEnv``: the batched quadrotor-in-turbulence simulator as a native TorchRL env."""
 from __future__ import annotations
 
+import contextlib
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
 import torch
-from tensordict import NestedKey, TensorDict, TensorDictBase
+from tensordict import NestedKey, TensorDict, TensorDictBase, is_tensor_collection
 from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
@@ -92,6 +94,18 @@ def _allow_compiled_envs() -> None:
     cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_ENVS_PER_PROCESS)
 
 
+def _ordinary(value):
+    """``value`` (a tensor, TensorDict or tuple of them) with every tensor made in inference mode,
+    or viewing one made outside it there, copied into an ordinary tensor (the same values and
+    strides): an inference tensor cannot be saved for a backward pass, nor written in place."""
+    if isinstance(value, tuple):
+        return tuple(_ordinary(v) for v in value)
+    if is_tensor_collection(value):
+        return TensorDict._new_unsafe({k: _ordinary(v) for k, v in value.items()}, batch_size=value.batch_size,
+                                      device=value.device)
+    return value.clone() if value.is_inference() or value._is_view() else value
+
+
 class QuadWindEnv(EnvBase):
     """A batch of quadrotors flying reference trajectories through wind and turbulence.
 
@@ -172,6 +186,11 @@ class QuadWindEnv(EnvBase):
         if compile_step:
             _allow_compiled_envs()
         self._advance = torch.compile(self._held_control_step, dynamic=False) if compile_step else self._held_control_step
+        # a decision's first control step starts with no row ended, so its merge would select the
+        # whole new state: eagerly that is a select per state leaf, skipped; compiled, the merge
+        # costs nothing and one graph serves every control step of the hold
+        self._first_advance = self._advance if compile_step else functools.partial(self._held_control_step, merge=False)
+        self._compiled = compile_step
         self.params: TensorDict | None = None
         self.state: TensorDict | None = None
         self._make_specs()
@@ -228,19 +247,21 @@ class QuadWindEnv(EnvBase):
         return out
 
     def _held_control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor,
-                           wind_ne: torch.Tensor | None, reward: torch.Tensor,
-                           steps: torch.Tensor, terminated: torch.Tensor, truncated: torch.Tensor):
+                           wind_ne: torch.Tensor | None, reward: torch.Tensor, steps: torch.Tensor,
+                           terminated: torch.Tensor, truncated: torch.Tensor, merge: bool = True):
         """One control step of a held action, with the task's view of it, merged branch-free into
         the decision's running totals ``(state, reward sum, steps, terminated, truncated)``: a row
         whose episode ended earlier in the hold keeps its state and totals. Step and merge are one
         function so that, compiled, they are one graph (no eager merge of every state leaf per
-        control step); the params do not change within an episode and are not merged."""
+        control step); the params do not change within an episode and are not merged.
+        ``merge=False``: no row has ended (the decision's first control step), the new state is
+        every row's."""
         running = ~(terminated | truncated)
         new = self.sim.step(params, state, action, wind_ne)
         new_terminated, new_truncated = self.task.done(params, new)
         new_reward = self.task.step_reward(params, state, new)
         return (
-            new.where(running.reshape(-1), state),
+            new.where(running.reshape(-1), state) if merge else new,
             reward + torch.where(running, new_reward, 0.0),
             steps + running.to(steps.dtype),
             torch.where(running, new_terminated, terminated),
@@ -263,9 +284,17 @@ class QuadWindEnv(EnvBase):
         steps = torch.zeros(n, 1, device=dev)
         terminated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
         truncated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
-        for _ in range(self.config.timing.hold_control_steps):
-            state, reward, steps, terminated, truncated = self._advance(
-                self.params, state, action, wind_ne, reward, steps, terminated, truncated)
+        # eagerly, the held steps run in inference mode: no autograd bookkeeping per op (a fifth of
+        # the eager step at small batches); what they return leaves it as ordinary tensors. Not
+        # for an action that asks for gradients through the simulator
+        inference = not (self._compiled or torch.is_inference_mode_enabled() or action.requires_grad)
+        with torch.inference_mode() if inference else contextlib.nullcontext():
+            for k in range(self.config.timing.hold_control_steps):
+                advance = self._advance if k else self._first_advance
+                state, reward, steps, terminated, truncated = advance(
+                    self.params, state, action, wind_ne, reward, steps, terminated, truncated)
+        if inference:
+            state, reward, steps, terminated, truncated = _ordinary((state, reward, steps, terminated, truncated))
         self.state = state
         out = self._observation(state)
         out.set("reward", self.task.decision_reward(reward / steps, terminated))
@@ -277,21 +306,23 @@ class QuadWindEnv(EnvBase):
     # --- helpers --------------------------------------------------------------------------------
 
     def _observation(self, s: TensorDict) -> TensorDict:
-        obs = TensorDict(
-            {
-                MEAS_KEY: s["sensors", MEAS_KEY],
-                "pos_error": s["nav", "pos"] - s["ref", "pos"],
-                "tilt_saturated": s["control", "tilt_saturated"],
-                "step": s["step"].unsqueeze(-1),
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
+        entries = {
+            MEAS_KEY: dict(s["sensors", MEAS_KEY].items()),
+            "pos_error": s["nav", "pos"] - s["ref", "pos"],
+            "tilt_saturated": s["control", "tilt_saturated"],
+            "step": s["step"].unsqueeze(-1),
+        }
         for key, (source, _) in _STATE_VIEWS.items():
-            obs[key] = s[source]
+            *parents, name = (key,) if isinstance(key, str) else key
+            node = entries
+            for parent in parents:
+                node = node.setdefault(parent, {})
+            node[name] = s[source]
         if self.config.residual.monitor is not None:
-            obs[MONITOR_KEY] = s["control", "monitor_left"] > 0
-        return obs
+            entries[MONITOR_KEY] = s["control", "monitor_left"] > 0
+        # without the constructor's per-entry checks (they cost more than the step's arithmetic at
+        # small batches): every entry is the simulator's, of batch [N] on this env's device
+        return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=self.device)
 
     def sim_state(self, key: NestedKey) -> torch.Tensor:
         """A copy of one entry of the simulator's state or, failing that, of its per-episode

@@ -46,7 +46,7 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import SensorChannelConfig, SensorConfig
-from .counter_rng import hash_normal
+from .counter_rng import hash_normal, keyed_normal, stream_key
 
 
 @dataclass(frozen=True)
@@ -173,12 +173,14 @@ class SensorSuite:
         return state["imu_mean"][..., start : start + _BY_NAME[name].width]
 
     def init(self, sensor_seed: Tensor) -> tuple[TensorDict, TensorDict]:
-        """``(params, state)`` of a batch of episodes: the noise seed ``[N]``, and the instruments'
+        """``(params, state)`` of a batch of episodes: the noise seed ``[N]`` and its hash keys of
+        the per-step noise streams (an episode's constants, hashed once), and the instruments'
         state (biases from their stationary distribution, nothing held yet), channels packed."""
         n = sensor_seed.shape[0]
         zeros = torch.zeros(n, _NUM_CHANNELS, device=sensor_seed.device)
         bias = self.bias_std * hash_normal(sensor_seed, 0, _STREAM_INITIAL_BIAS, _NUM_CHANNELS)
-        params = TensorDict(seed=sensor_seed, batch_size=[n])
+        params = TensorDict(seed=sensor_seed, noise_key=stream_key(sensor_seed, _STREAM_SENSORS),
+                            imu_noise_key=stream_key(sensor_seed, _STREAM_IMU_SUBSAMPLES), batch_size=[n])
         return params, TensorDict(bias=bias, held=zeros, imu_mean=zeros[..., _IMU].clone(), batch_size=[n])
 
     def measure(
@@ -210,13 +212,13 @@ class SensorSuite:
             # the IMU's intermediate samples, in time order, each with its own noise and bias step
             imu_truth = pack_channels(imu_truth_sub, _IMU_NAMES)
             sub = imu_truth.shape[-2]
-            draws = hash_normal(params["seed"], step, _STREAM_IMU_SUBSAMPLES, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
+            draws = keyed_normal(params["imu_noise_key"], step, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
             imu_bias, imu_sum = bias[..., _IMU], 0.0
             for j in range(sub):
                 imu_bias = self.bias_decay[_IMU] * imu_bias + self.bias_step_std[_IMU] * draws[..., j, _NUM_IMU:]
                 imu_sum = imu_sum + imu_truth[..., j, :] + imu_bias + self.noise_std[_IMU] * draws[..., j, :_NUM_IMU]
             bias = torch.cat((bias[..., : _IMU.start], imu_bias, bias[..., _IMU.stop :]), -1)
-        draws = hash_normal(params["seed"], step, _STREAM_SENSORS, 2 * _NUM_CHANNELS)
+        draws = keyed_normal(params["noise_key"], step, 2 * _NUM_CHANNELS)
         stepped = self.bias_decay * bias + self.bias_step_std * draws[..., _NUM_CHANNELS:]
         bias = torch.where(tick, stepped, bias)
         sample = truth_packed + bias + self.noise_std * draws[..., :_NUM_CHANNELS]

@@ -3,7 +3,8 @@
 ``params`` holds what is fixed for an episode, written only when it starts: the scenario
 (``params["scenario"]``, the fields of ``SCENARIO_FIELDS``), its schedule (``pattern_start``,
 ``end_step``), the atmosphere's per-episode constants (``params["wind"]``: profile, field maps,
-mode phases and amplitudes or cube) and the sensor noise seed (``params["sensors"]``).
+mode phases and amplitudes or cube) and the sensor noise seed with its streams' hash keys
+(``params["sensors"]``).
 ``state`` holds what a step changes, one sub-tensordict per concept:
 
 * ``step`` [N]: the control-step counter; ``finite`` [N, 1]: the physics stayed finite;
@@ -51,7 +52,7 @@ from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotat
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
 from .trajectories import TrajectoryLibrary, registered_patterns
-from .vehicle import RigidBody, VehicleParams, allocate, physics_step
+from .vehicle import RigidBody, VehicleParams, allocate, physics_step, step_constants
 
 _TRAJECTORY_CACHE: dict = {}
 
@@ -79,6 +80,8 @@ class QuadSimulator:
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         c, dev = self.cfg, self.device
         self.vehicle = VehicleParams.from_config(c.vehicle, dev)
+        self.physics_constants = step_constants(self.vehicle, c.timing.physics_dt_s, dev)
+        self._level = torch.tensor([1.0, 0.0, 0.0, 0.0], device=dev)  # the attitude a broken row is parked in
         self.controller = controller or make_base_controller(c.controller, c.vehicle, c.timing.control_dt_s, dev)
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
@@ -178,27 +181,27 @@ class QuadSimulator:
         wind_total = state["wind", "total"]
         imu_sub = []  # what the IMU instruments read at their intermediate sample instants
         for i in range(1, self.cfg.timing.control_substeps + 1):
-            body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s)
+            body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s,
+                                                self.physics_constants)
             if i in self.imu_substeps:
-                imu_sub.append(TensorDict(gyro=body.omega, accel=specific_force, batch_size=state.batch_size))
+                imu_sub.append((body.omega, specific_force))
         n = state.batch_size
-        new = TensorDict(
-            step=state["step"] + 1,
-            body=TensorDict(**body._asdict(), specific_force=specific_force, batch_size=n),  # initial()'s key order
-            wind=state["wind"],
-            sensors=state["sensors"],
-            control=TensorDict(ff=ff, cmd=cmd, **monitor, batch_size=n),  # initial()'s key order
+        finite = torch.isfinite(torch.cat((body.pos, body.vel, body.quat, body.omega), -1)).all(-1, keepdim=True)
+        imu_truth_sub = None if not imu_sub else _tensordict(torch.Size([*n, len(imu_sub)]), {
+            "gyro": torch.stack([gyro for gyro, _ in imu_sub], 1), "accel": torch.stack([accel for _, accel in imu_sub], 1)})
+        new = _tensordict(n, {
+            "step": state["step"] + 1,
+            "body": _tensordict(n, {**body._asdict(), "specific_force": specific_force}),  # initial()'s key order
+            "wind": state["wind"],
+            "sensors": state["sensors"],
+            "control": _tensordict(n, dict(ff=ff, cmd=cmd, **monitor)),  # initial()'s key order
             **({"base": state["base"]} if "base" in state.keys() else {}),
-            nav=state["nav"],
-            batch_size=n,
-        )
-        new = self._observe_instant(params, new, first=False, imu_truth_sub=torch.stack(imu_sub, 1) if imu_sub else None,
-                                    wind_ne=wind_ne)
-        b = new["body"]
-        finite = torch.stack([torch.isfinite(b[k]).all(-1) for k in ("pos", "vel", "quat", "omega")], -1).all(-1, keepdim=True)
+            "nav": state["nav"],
+        })
+        new = self._observe_instant(params, new, first=False, imu_truth_sub=imu_truth_sub, wind_ne=wind_ne)
         new["finite"] = finite
         # contiguous leaves, as initial() returns: a compiled step is guarded on its input's strides
-        return _sanitize(new, ~finite).apply(Tensor.contiguous)
+        return _contiguous(_sanitize(new, ~finite, self.physics_constants.zero, self._level))
 
     def _cos_tilt(self, state: TensorDict) -> Tensor:
         """``[N, 1]`` cosine of the tilt from vertical in the attitude the PD flies on: the body's,
@@ -236,6 +239,8 @@ class QuadSimulator:
             nav = TensorDict(pos=pos, vel=body["vel"], baro_offset=torch.zeros_like(pos[..., 2:]), batch_size=state.batch_size)
             nav_rot, nav_omega = rot, body["omega"]
         else:
+            # the measured attitude as a rotation, once: the filter's prediction and the PD read it
+            nav_rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
             if feedback == "sensors" or first:
                 nav = init_navigation(meas)
             else:
@@ -247,8 +252,9 @@ class QuadSimulator:
                     self.sensors.ticks(step, "baro_alt"),
                     self.navigation,
                     self.control_dt,
+                    rot=nav_rot,
                 )
-            nav_rot, nav_omega = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1))), meas["gyro"]
+            nav_omega = meas["gyro"]
         # the accelerometer as the law's feedback reads it: the true specific force with truth feedback
         specific_force = body["specific_force"] if feedback == "truth" else meas["accel"]
         inputs = ControlInputs(pos=nav["pos"], vel=nav["vel"], rot=nav_rot, omega=nav_omega, ref=ref,
@@ -256,17 +262,33 @@ class QuadSimulator:
                                wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first)
         pd, base = self.controller(inputs, state.get("base", None))
 
-        out = state.clone(recurse=False)
-        wind_state.update(dict(mean=mean, total=total))
-        sensor_state[MEAS_KEY] = meas
-        out.update(dict(wind=wind_state, sensors=sensor_state, nav=nav))
-        out["ref"] = TensorDict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw, batch_size=state.batch_size)
-        control = out["control"].clone(recurse=False)
-        control.update(dict(pd_wrench=pd.wrench, tilt_cmd=pd.tilt_cmd, tilt_saturated=pd.tilt_saturated))
-        out["control"] = control
+        n = state.batch_size
+        out = dict(state.items())
+        out["wind"] = _tensordict(n, {**dict(wind_state.items()), "mean": mean, "total": total})
+        out["sensors"] = _tensordict(n, {**dict(sensor_state.items()), MEAS_KEY: meas})
+        out["nav"] = nav
+        out["ref"] = _tensordict(n, dict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw))
+        out["control"] = _tensordict(n, {**dict(state["control"].items()), "pd_wrench": pd.wrench, "tilt_cmd": pd.tilt_cmd,
+                                         "tilt_saturated": pd.tilt_saturated})
         if base is not None:
             out["base"] = base
-        return out
+        return _tensordict(n, out)
+
+
+def _tensordict(batch_size: torch.Size, entries: dict) -> TensorDict:
+    """A TensorDict of the simulator's own entries (tensors and TensorDicts of batch
+    ``batch_size`` on its device), built without the constructor's per-entry checks: a step
+    builds a dozen, and at small batches the checks cost more than the arithmetic (compiled,
+    ``_new_unsafe`` is the constructor)."""
+    return TensorDict._new_unsafe(entries, batch_size=batch_size)
+
+
+def _contiguous(td: TensorDict) -> TensorDict:
+    """``td.apply(Tensor.contiguous)``, out of place, without ``apply``'s per-call machinery (a
+    tenth of the eager step at one row)."""
+    return TensorDict._new_unsafe(
+        {k: _contiguous(v) if is_tensor_collection(v) else v.contiguous() for k, v in td.items()},
+        batch_size=td.batch_size, device=td.device)
 
 
 def _scatter_rows(full: TensorDict, rows: Tensor, part: TensorDict) -> TensorDict:
@@ -275,34 +297,33 @@ def _scatter_rows(full: TensorDict, rows: Tensor, part: TensorDict) -> TensorDic
     return full.apply(lambda whole, new: whole.index_copy(0, rows, new), part)
 
 
-def _sanitize(state: TensorDict, broken: Tensor) -> TensorDict:
-    """Rows whose physics went non-finite are parked at their reference, level and at rest, so
-    nothing non-finite leaves the simulator (the task terminates them in the same step, on
-    ``state["finite"]``). Branch-free: no host synchronisation in the step."""
+def _sanitize(state: TensorDict, broken: Tensor, zero: Tensor, level: Tensor) -> TensorDict:
+    """Rows whose physics went non-finite are parked at their reference, level (quaternion
+    ``level``) and at rest, so nothing non-finite leaves the simulator (the task terminates them
+    in the same step, on ``state["finite"]``). Branch-free: no host synchronisation in the step.
+    ``zero``: a 0-dim zero of the state's dtype."""
+    n = state.batch_size
     body = state["body"]
-    level = torch.zeros_like(body["quat"])
-    level[..., 0] = 1.0
-    fixes = {
-        "pos": state["ref", "pos"],
-        "pos_carry": torch.zeros_like(body["pos_carry"]),
-        "vel": torch.zeros_like(body["vel"]),
-        "quat": level,
-        "omega": torch.zeros_like(body["omega"]),
-        "specific_force": torch.zeros_like(body["specific_force"]),
-    }
-    out = state.clone(recurse=False)
-    out["body"] = body.clone(recurse=False).update({k: torch.where(broken, v, body[k]) for k, v in fixes.items()})
+    fixes = {"pos": state["ref", "pos"], "pos_carry": zero, "vel": zero, "quat": level, "omega": zero, "specific_force": zero}
+    out = dict(state.items())
+    out["body"] = _tensordict(n, {k: torch.where(broken, fixes[k], v) if k in fixes else v for k, v in body.items()})
+    # the measurements (a sub-tensordict of named entries), the wrenches and the wind are zeroed,
+    # packed side by side: three ops, not three per entry
     zeroed = {"sensors": (MEAS_KEY,), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
     if "base" in state.keys():  # the base law's state restarts from zero in a parked row
         zeroed["base"] = tuple(state["base"].keys())
-
-    def zero(v: Tensor) -> Tensor:
-        return torch.where(broken, 0.0, v.nan_to_num())
-
-    for group, keys in zeroed.items():
-        sub = state[group].clone(recurse=False)
-        # the measurements are a sub-tensordict of named entries: zeroed entry by entry
-        for k in keys:  # set, not update: update would write into the shared sub-tensordict
-            sub.set(k, sub[k].apply(zero) if is_tensor_collection(sub[k]) else zero(sub[k]))
-        out[group] = sub
-    return out
+    parts = [(group, key, entry) for group, keys in zeroed.items() for key in keys
+             for entry in (state[group, key].keys() if is_tensor_collection(state[group, key]) else (None,))]
+    leaves = [state[group, key] if entry is None else state[group, key, entry] for group, key, entry in parts]
+    packed = torch.where(broken, zero, torch.cat(leaves, -1).nan_to_num())
+    groups = {group: dict(state[group].items()) for group in zeroed}
+    nested: dict[tuple[str, str], dict[str, Tensor]] = {}
+    for (group, key, entry), leaf in zip(parts, packed.split([leaf.shape[-1] for leaf in leaves], -1)):
+        if entry is None:
+            groups[group][key] = leaf
+        else:
+            nested.setdefault((group, key), {})[entry] = leaf
+    for (group, key), entries in nested.items():
+        groups[group][key] = _tensordict(n, entries)
+    out.update({group: _tensordict(n, entries) for group, entries in groups.items()})
+    return _tensordict(n, out)

@@ -147,25 +147,55 @@ class RotorAero:
         return cls(cfg.rotor_radius_m, s, pitch, inflow, ct0)
 
 
-def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero) -> Tensor:
-    """Thrust ``[N, 4]`` of each rotor relative to its still-air value ``k_T omega^2``, for the
-    body-frame velocity relative to the air ``[N, 3]`` and rotor speeds ``[N, 4]`` (rad/s)."""
-    # the ratio multiplies k_T omega^2, so a stopped rotor makes no thrust; the floor keeps it finite
-    tip_speed = (rotor_speed * r.radius).clamp_min(1.0)
-    climb = (air_rel_body[..., 2:] / tip_speed).clamp_min(-r.hover_inflow)
-    mu2 = (air_rel_body[..., :2].square().sum(-1, keepdim=True) / tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
+class RotorOperands(NamedTuple):
+    """The numbers :func:`rotor_thrust_ratio` combines, derived from a :class:`RotorAero` in
+    float64: Python floats, or 0-dim tensors on the simulator's device (an eager op converts a
+    Python number operand at every use, ``aten::_to_copy``, and a tensor not at all; a float32
+    tensor holds the value the conversion gives, so the results are the same bits)."""
+
+    radius: Tensor | float
+    half_solidity_lift: Tensor | float  # s
+    blade_ct: Tensor | float  # s theta / 3: C_T before the advance and inflow terms
+    inflow_ct: Tensor | float  # s / 2: d C_T / d lambda
+    hover_inflow: Tensor | float
+    descent_limit: Tensor | float  # -hover_inflow: the clamp of the climb ratio
+    static_ct: Tensor | float
+    one: Tensor | float
+    advance_lift: Tensor | float  # 3/2: C_T's growth with mu^2
+
+
+def rotor_operands(r: RotorAero, device: torch.device | str | None = None) -> RotorOperands:
+    """``r``'s operands: Python floats without ``device``, else float32 0-dim tensors on it."""
     s = r.half_solidity_lift
-    ct_blade = s * r.pitch / 3.0 * (1.0 + 1.5 * mu2)  # C_T before the inflow term
-    inflow = torch.full_like(climb, r.hover_inflow)
+    values = RotorOperands(r.radius, s, s * r.pitch / 3.0, 0.5 * s, r.hover_inflow, -r.hover_inflow, r.static_ct, 1.0, 1.5)
+    if device is None:
+        return values
+    return RotorOperands(*(torch.tensor(v, dtype=torch.float32, device=device) for v in values))
+
+
+def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero | RotorOperands) -> Tensor:
+    """Thrust ``[N, 4]`` of each rotor relative to its still-air value ``k_T omega^2``, for the
+    body-frame velocity relative to the air ``[N, 3]`` and rotor speeds ``[N, 4]`` (rad/s).
+    ``r``: the rotor, or its operands (:func:`rotor_operands`) on the inputs' device."""
+    o = rotor_operands(r) if isinstance(r, RotorAero) else r
+    # the ratio multiplies k_T omega^2, so a stopped rotor makes no thrust; the floor keeps it finite
+    tip_speed = (rotor_speed * o.radius).clamp_min(1.0)
+    climb = (air_rel_body[..., 2:] / tip_speed).clamp_min(o.descent_limit)
+    mu2 = (air_rel_body[..., :2].square().sum(-1, keepdim=True) / tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
+    ct_blade = o.blade_ct * (o.one + o.advance_lift * mu2)  # C_T before the inflow term
+    inflow = torch.as_tensor(o.hover_inflow, dtype=climb.dtype, device=climb.device).expand_as(climb)
     for _ in range(_INFLOW_NEWTON_STEPS):
-        ct = ct_blade - 0.5 * s * inflow
+        ct = ct_blade - o.inflow_ct * inflow
         speed = torch.sqrt(mu2 + inflow.square())
-        residual = inflow - climb - ct / (2.0 * speed)
-        slope = 1.0 + s / (4.0 * speed) + ct * inflow / (2.0 * speed**3)
+        # 2 x and 4 x as sums (exact, as the products are) and s / x as reciprocal times s (what
+        # a Python float over a tensor computes): no Python number operand in the loop
+        twice, cube = speed + speed, speed**3
+        residual = inflow - climb - ct / twice
+        slope = o.one + (twice + twice).reciprocal() * o.half_solidity_lift + ct * inflow / (cube + cube)
         inflow = inflow - residual / slope
     # beyond zero thrust (inflow faster than the blades' pitch: windmill state) a fixed-pitch
     # propeller brakes rather than pulls; the model stops at zero thrust
-    return ((ct_blade - 0.5 * s * inflow) / r.static_ct).clamp_min(0.0)
+    return ((ct_blade - o.inflow_ct * inflow) / o.static_ct).clamp_min(0.0)
 
 
 def drag_force_body(air_rel_vel_body: Tensor, half_rho_cda: Tensor) -> Tensor:
@@ -196,42 +226,76 @@ class RigidBody(NamedTuple):
     rotor: Tensor  # [N, 4] rad/s
 
 
+class StepConstants(NamedTuple):
+    """The numbers one :func:`physics_step` of ``dt`` uses, as 0-dim float32 tensors on the
+    simulator's device (``[3]`` for the vectors): an eager op converts a Python number operand at
+    every use (``aten::_to_copy``), a tensor not at all, and a float32 tensor holds the value that
+    conversion gives, so the results are the same bits."""
+
+    zero: Tensor
+    dt: Tensor
+    half_dt: Tensor
+    motor_decay: Tensor  # exp(-dt / tau): the exact first-order lag over dt
+    thrust_coeff: Tensor
+    mass: Tensor
+    gravity: Tensor  # [3] (0, 0, g), world
+    is_z: Tensor  # bool [3]: the vertical component
+    rotor: RotorOperands | None
+
+
+def step_constants(p: VehicleParams, dt: float, device: torch.device | str | None = None) -> StepConstants:
+    """:class:`StepConstants` of a physics step of ``dt`` seconds with vehicle ``p``."""
+    num = lambda v: torch.tensor(v, dtype=torch.float32, device=device)  # noqa: E731
+    return StepConstants(
+        zero=num(0.0), dt=num(dt), half_dt=num(0.5 * dt), motor_decay=num(math.exp(-dt / p.motor_time_constant)),
+        thrust_coeff=num(p.thrust_coeff), mass=num(p.mass), gravity=num([0.0, 0.0, GRAVITY_M_S2]),
+        is_z=torch.tensor([False, False, True], device=device),
+        rotor=None if p.rotor is None else rotor_operands(p.rotor, device),
+    )
+
+
 def physics_step(
-    body: RigidBody, rotor_cmd: Tensor, air_vel_world: Tensor, p: VehicleParams, dt: float
+    body: RigidBody, rotor_cmd: Tensor, air_vel_world: Tensor, p: VehicleParams, dt: float,
+    k: StepConstants | None = None,
 ) -> tuple[RigidBody, Tensor]:
     """Advance the rigid body by ``dt``; also returns the specific force (body frame) that an
-    ideal accelerometer reads over the step (acceleration minus gravity)."""
+    ideal accelerometer reads over the step (acceleration minus gravity). ``k``: the step's
+    constants (:func:`step_constants` of ``p`` and ``dt`` on the inputs' device), made once by a
+    caller that steps often."""
+    k = step_constants(p, dt, rotor_cmd.device) if k is None else k
     pos, vel, quat, omega = body.pos, body.vel, body.quat, body.omega
-    rotor = rotor_cmd + (body.rotor - rotor_cmd) * math.exp(-dt / p.motor_time_constant)
+    rotor = rotor_cmd + (body.rotor - rotor_cmd) * k.motor_decay
     rot = quat_to_rotmat(quat)
     air_rel_body = rotate_inverse(rot, vel - air_vel_world)
-    rotor_thrust = p.thrust_coeff * rotor * rotor
-    if p.rotor is not None:
-        rotor_thrust = rotor_thrust * rotor_thrust_ratio(air_rel_body, rotor, p.rotor)
+    rotor_thrust = k.thrust_coeff * rotor * rotor
+    if k.rotor is not None:
+        rotor_thrust = rotor_thrust * rotor_thrust_ratio(air_rel_body, rotor, k.rotor)
     wrench = vecmat(rotor_thrust, p.mixer.T)
     force_body = drag_force_body(air_rel_body, p.drag_half_rho_cda)
-    force_body = force_body + torch.nn.functional.pad(wrench[..., :1], (2, 0))
-    acc = rotate(rot, force_body) / p.mass
-    acc = acc - acc.new_tensor([0.0, 0.0, GRAVITY_M_S2])
+    force_body = force_body + torch.where(k.is_z, wrench[..., :1], k.zero)  # (0, 0, T)
+    acc = rotate(rot, force_body) / k.mass
+    acc = acc - k.gravity
 
-    resting = (pos[..., 2:] <= 0.0) & (acc[..., 2:] <= 0.0)
-    acc = torch.where(resting, 0.0, acc)
-    vel = torch.where(resting, 0.0, vel + dt * acc)
-    increment = dt * vel - body.pos_carry
+    resting = (pos[..., 2:] <= k.zero) & (acc[..., 2:] <= k.zero)
+    acc = torch.where(resting, k.zero, acc)
+    vel = torch.where(resting, k.zero, vel + k.dt * acc)
+    increment = k.dt * vel - body.pos_carry
     moved = pos + increment
     carry = (moved - pos) - increment
-    below = moved[..., 2:] < 0.0
-    pos = torch.cat((moved[..., :2], moved[..., 2:].clamp_min(0.0)), -1)
-    carry = torch.cat((carry[..., :2], torch.where(below, 0.0, carry[..., 2:])), -1)
-    vel = torch.cat((vel[..., :2], torch.where(below, vel[..., 2:].clamp_min(0.0), vel[..., 2:])), -1)
+    # below the ground: the height (a Scalar clamp_min keeps -0.0, as this does), its carry and
+    # any sink rate to zero; whole-row selects on the vertical component, not slices and concats
+    below = (moved < k.zero) & k.is_z
+    pos = torch.where(below, k.zero, moved)
+    carry = torch.where(below, k.zero, carry)
+    vel = torch.where(below, vel.clamp_min(0.0), vel)
 
     torque = wrench[..., 1:]
-    omega_mid = omega + 0.5 * dt * _angular_acceleration(omega, torque, p.inertia)
-    omega_new = omega + dt * _angular_acceleration(omega_mid, torque, p.inertia)
-    quat = quat_integrate(quat, torch.where(resting, 0.0, omega_mid), dt)
-    omega = torch.where(resting, 0.0, omega_new)
+    omega_mid = omega + k.half_dt * _angular_acceleration(omega, torque, p.inertia)
+    omega_new = omega + k.dt * _angular_acceleration(omega_mid, torque, p.inertia)
+    quat = quat_integrate(quat, torch.where(resting, k.zero, omega_mid), k.half_dt)
+    omega = torch.where(resting, k.zero, omega_new)
 
-    specific_force_body = rotate_inverse(rot, acc + acc.new_tensor([0.0, 0.0, GRAVITY_M_S2]))
+    specific_force_body = rotate_inverse(rot, acc + k.gravity)
     return RigidBody(pos, carry, vel, quat, omega, rotor), specific_force_body
 
 

@@ -142,6 +142,8 @@ class TrajectoryLibrary:
         # fixed-altitude flights climb to their own altitude first; vertical ones climb in the pattern
         self.fixed_altitude = fixed_altitude_mask(device)
         self.arm_step = int(round(cfg.arm_time_s / control_dt_s))
+        self._vertical = torch.tensor([False, False, True], device=device)
+        self._zero = torch.zeros((), device=device)
         if self.arm_step % align_steps:
             raise ValueError(f"TrajectoryConfig.arm_time_s={cfg.arm_time_s} must fall on the {align_steps}-step log grid")
 
@@ -162,10 +164,8 @@ class TrajectoryLibrary:
         height = torch.where(self.fixed_altitude[traj_id], altitude_m, 0.0)
         z, vz, az, jz = climb_profile(t_climb, height, self.cfg.climb_rate_m_s, self.cfg.climb_blend_s)
         climb = torch.stack((z, vz, az, jz), -1)  # [N, 4]
-        zero = torch.zeros_like(climb[..., :1])
-        kin = entry[..., :12] + torch.cat(
-            [torch.cat((zero, zero, climb[..., i : i + 1]), -1) for i in range(4)], -1
-        )
+        # (0, 0, z, 0, 0, vz, ...): each climb term on the vertical of its vector, +0 elsewhere
+        kin = entry[..., :12] + torch.where(self._vertical, climb.unsqueeze(-1), self._zero).flatten(-2)
         return Reference(
             pos=kin[..., 0:3],
             vel=kin[..., 3:6],

@@ -35,6 +35,7 @@ def climb_profile(t: Tensor, height: Tensor, rate: float, blend: float) -> tuple
     ``height`` at ``height / rate + blend``. Works on ``[N]`` tensors (batched altitudes).
     """
     duration = height / rate
-    up = _ramp_derivatives(t, blend)
-    down = _ramp_derivatives(t - duration, blend)
-    return tuple(rate * (a - b) for a, b in zip(up, down))  # type: ignore[return-value]
+    # the blends into and out of the climb side by side, the four quantities stacked: one
+    # evaluation of the (elementwise) ramp for both, not one per blend and per quantity
+    up, down = torch.stack(_ramp_derivatives(torch.stack((t, t - duration), -1), blend), -1).unbind(-2)
+    return (rate * (up - down)).unbind(-1)  # type: ignore[return-value]
