@@ -79,8 +79,9 @@ def main() -> None:
         if args.quick:
             config = SWEEP_QUICK.config(config)
         estimator = load_estimator(regime, config=config)
-        settings = policy_env_settings(payload["env_spec"], estimator)
-        settings.pop("zero_inputs")
+        # the estimate the policy sees (its EMA and query interval); the rest is each family's own
+        settings = {key: value for key, value in policy_env_settings(payload["env_spec"], estimator).items()
+                    if key in ("ema_tau_s", "estimate_every_s")}
         compile_step = (not args.quick and policy_compile_step(payload)) if args.compile is None else args.compile
         scenarios = validation_scenarios(regime, 3 if args.quick else None)
         if args.quick:

@@ -242,3 +242,26 @@ def test_recipes_train_on_any_classical_base():
     assert with_base_controller("horizontal", cfg, "pd_ff_oracle")[1] == "truth"
     for name in CLASSICAL_CONTROLLERS:
         with_base_controller("horizontal", cfg, name)[0].validate()
+
+
+def test_search_recipe_writes_its_table(tmp_path):
+    """``recipes/tune_base_controllers.py --quick``: every candidate's row against PD, the kept
+    value by the search's rule, and the provenance a results file carries."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from quadwind_trl.evaluation.base_search import select_candidate
+
+    root = Path(__file__).resolve().parent.parent
+    out = subprocess.run([sys.executable, "recipes/tune_base_controllers.py", "--quick", "--regimes", "horizontal",
+                          "--families", "dob", "--results", str(tmp_path)], cwd=root, capture_output=True, text=True,
+                         timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
+    result = json.loads((tmp_path / "base_search_horizontal.json").read_text())
+    family = result["families"]["dob"]
+    assert [row["value"] for row in family["candidates"]] == [0.2, 0.8]
+    assert family["chosen"] == select_candidate(family["candidates"], result["pd"]["crashed"])["value"]
+    assert result["pd"]["improvement_xy_pct"] == 0.0 and result["episodes"] == 3
+    assert {"command", "git_commit", "platform", "estimate"} <= set(result)
