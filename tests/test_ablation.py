@@ -162,7 +162,7 @@ def test_classical_rows_are_summarised_against_pd_and_the_policy(tmp_path, episo
     against PD and against the wind-aware policy, and the feed-forward on the estimate against its
     blind twin (the estimate's worth to a law that cannot learn)."""
     sweep, scenarios, override = episodes
-    scenarios = scenarios[:1]  # one world: what is checked is per episode, six flights of it are the cost
+    scenarios = scenarios[:2]  # two worlds (a spread for the paired statistics); six flights of them are the cost
     law, _ = classical_controller("horizontal", "pid")
 
     def on_pid_base(payload: dict) -> None:
