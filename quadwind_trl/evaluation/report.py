@@ -640,7 +640,9 @@ def classical_section(searches: dict[str, dict], manifests: dict[str, dict]) -> 
              "RMSE plus the mean of the worst tenth, lower is better; a family keeps its best candidate among those that",
              "crash no more often than PD). Beside them, the PPO seeds' own evaluations on the",
              "same validation episodes against the same PD (their kept checkpoints). These are validation flights, the",
-             "flights choices are made on; the test sweeps' rows come from the paired ablation.", ""]
+             "flights choices are made on; the test sweeps' rows come from the paired ablation. A family's candidates",
+             "fly in one batch, so its `K_i = 0` row is PD (or PD with feed-forward alone) in another batch layout: equal",
+             "to PD to float rounding, which is all its few \"wins\" are.", ""]
     for regime, search in searches.items():
         pd = search["pd"]
         lines += [f"### {regime.capitalize()} validation sweep ({search['episodes']} episodes)", "",
