@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+from ..regimes import SWEEP_REGIME
 from . import paper
 from .base_search import select_candidate
 from .perception import across_seeds
@@ -305,10 +306,24 @@ SUMMARY_CLAIMS = (
 CLASSICAL_PENDING = "being measured"
 
 
-def summary_rows(ablations: dict[str, dict], seeds: dict[str, dict[str, dict]]) -> list[dict]:
+def best_classical(searches: dict[str, dict]) -> dict[str, str]:
+    """``{regime: classical controller}``: the family whose kept candidate has the lowest validation
+    score in the regime's search (chosen on validation flights, never on a test sweep)."""
+    best = {}
+    for regime, search in searches.items():
+        kept = {family: select_candidate(block["candidates"], search["pd"]["crashed"])["validation_score"]
+                for family, block in search["families"].items()}
+        best[regime] = min(kept, key=kept.get)
+    return best
+
+
+def summary_rows(ablations: dict[str, dict], seeds: dict[str, dict[str, dict]], classical: dict[str, dict] | None = None,
+                 searches: dict[str, dict] | None = None) -> list[dict]:
     """One row per claim of :data:`SUMMARY_CLAIMS` that the ablation files hold: episodes, PD's
     mean RMSE, the shipped policy's reduction (bootstrap interval, wins), the mean over training
-    seeds with its 95 % t-interval, and the paper's figure."""
+    seeds with its 95 % t-interval, the paper's figure and, where its test-sweep flights exist
+    (``classical``), the best classical controller on validation (:func:`best_classical`)."""
+    best = best_classical(searches or {})
     rows = []
     for sweep, metric, label, ref in SUMMARY_CLAIMS:
         block = ablations.get(sweep, {}).get(metric)
@@ -320,7 +335,12 @@ def summary_rows(ablations: dict[str, dict], seeds: dict[str, dict[str, dict]]) 
         rows.append({"sweep": sweep, "metric": metric, "label": label, "n": aware["n"],
                      "pd_mean": aware["baseline_mean"], "improvement": aware["improvement"],
                      "ci": (aware["ci_low"], aware["ci_high"]), "wins": aware["wins"],
-                     "seeds": across_seeds(per_seed), "seed_names": sorted(per_seed), "paper": ref})
+                     "seeds": across_seeds(per_seed), "seed_names": sorted(per_seed), "paper": ref,
+                     "classical": None})
+        name = best.get(SWEEP_REGIME[sweep])
+        flown = (classical or {}).get(sweep, {}).get(metric, {})
+        if name in flown:
+            rows[-1]["classical"] = (name, flown[name])
     return rows
 
 
@@ -330,8 +350,9 @@ def summary_section(rows: list[dict], figure: str | None = None) -> str:
              "RMSE reduction against the PD baseline on the paper's test sweeps, `1 - mean RL / mean PD` (positive: the",
              "wind-aware policy tracks better). *Shipped*: the shipped policy (the median training seed by validation),",
              "with its paired bootstrap 95 % interval and wins. *Seeds*: the mean over every training seed with its",
-             "95 % Student-t interval. The best classical controller (PID, wind feed-forward, disturbance observer)",
-             "is being measured; its column fills in when it is.", "",
+             "95 % Student-t interval. *Best classical*: of PID, wind feed-forward and the disturbance observer, the one",
+             "with the best validation score in the regime, flown on the same test episodes and paired with PD there",
+             "(\"being measured\" until it has flown them; section \"Against classical controllers\").", "",
              "| claim | episodes | PD RMSE, ours / paper (m) | shipped policy | seeds: mean (95 % t) | paper | best classical |",
              "|---|---|---|---|---|---|---|"]
     for row in rows:
@@ -344,7 +365,13 @@ def summary_section(rows: list[dict], figure: str | None = None) -> str:
             paper_cell = "not scored"
         else:
             paper_cell = f"{ref['improvement']:+.1f} %" + (f" ({ref['ci'][0]:+.1f} to {ref['ci'][1]:+.1f})" if ref["ci"] else "")
-        lines.append(f"| {row['label']} | {row['n']} | {pd} | {shipped} | {seed_cell} | {paper_cell} | {CLASSICAL_PENDING} |")
+        if row["classical"] is None:
+            classical_cell = CLASSICAL_PENDING
+        else:
+            name, c = row["classical"]
+            classical_cell = (f"{CLASSICAL_LABEL.get(name, name)}: {c['improvement']:+.1f} % "
+                              f"({c['ci_low']:+.1f} to {c['ci_high']:+.1f}), {c['wins']}/{c['n']}")
+        lines.append(f"| {row['label']} | {row['n']} | {pd} | {shipped} | {seed_cell} | {paper_cell} | {classical_cell} |")
     lines.append("")
     if figure:
         lines += [f"![RMSE reduction against PD per claim: shipped policy, training seeds, paper]({figure})", ""]
@@ -794,7 +821,8 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
     seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((results_dir / "seeds").glob("seed*"))}
     seeds = {seed: r for seed, r in seeds.items() if r}
     if ablations:
-        parts.append(summary_section(summary_rows(ablations, seeds), summary_figure))
+        rows = summary_rows(ablations, seeds, read_ablations(results_dir / "classical"), read_searches(results_dir))
+        parts.append(summary_section(rows, summary_figure))
     pd_file = results_dir / "pd_baseline.json"
     if pd_file.exists():
         parts.append(pd_calibration_section(json.loads(pd_file.read_text())))
