@@ -44,7 +44,7 @@ import torch
 
 from quadwind_trl.config import MonitorConfig, config_to_dict
 from quadwind_trl.evaluation import figures
-from quadwind_trl.evaluation.ablation import (CONTROLLERS, TRAINED_POLICY_KEYS, episode_table, episode_table_from_json,
+from quadwind_trl.evaluation.ablation import (CONTROLLERS, RL_CONTROLLERS, TRAINED_POLICY_KEYS, episode_table, episode_table_from_json,
                                               fly_controllers, policy_compile_step, policy_env_config, summarize_ablation)
 from quadwind_trl.evaluation.phases import pattern_starts
 from quadwind_trl.evaluation.replay import CROSS_PLATFORM_RTOL, flown_quick, replay_verdict, verify_ablation
@@ -69,8 +69,9 @@ def main() -> None:
     parser.add_argument("--oracle-policy", type=Path, nargs="*", default=None,
                         help="policies trained with --wind-input truth, same order (default: none, and no trained_oracle)")
     parser.add_argument("--controllers", nargs="+", default=None, choices=list(CONTROLLERS),
-                        help=f"default: {' '.join(CONTROLLERS)} (trained_blind only where a trained-blind policy exists, "
-                             "trained_oracle only with --oracle-policy)")
+                        help=f"default: {' '.join(RL_CONTROLLERS)} (trained_blind only where a trained-blind policy exists, "
+                             "trained_oracle only with --oracle-policy); the classical controllers fly when named "
+                             "(they depend on no policy: recipes/reproduce.py flies them once per sweep)")
     parser.add_argument("--quick", action="store_true", help="one seed and intensity per sweep, 10 s patterns flown from their start")
     parser.add_argument("--results", type=Path, default=None, help="results directory (default results/, --quick runs/quick/results)")
     parser.add_argument("--figures", type=Path, default=None, help="figure directory (default docs/figures, --quick runs/quick/figures)")
@@ -117,7 +118,7 @@ def main() -> None:
         blind_path = checkpoint("policy", regime, args.blind_policy) if args.blind_policy else (
             CHECKPOINT_DIR / f"policy_{regime}_trained_blind.pt")
         oracle_path = checkpoint("policy", regime, args.oracle_policy) if args.oracle_policy else None
-        controllers = tuple(args.controllers or CONTROLLERS)
+        controllers = tuple(args.controllers or RL_CONTROLLERS)
         if args.controllers is None and oracle_path is None:
             controllers = tuple(c for c in controllers if c != "trained_oracle")
         elif "trained_oracle" in controllers and (oracle_path is None or not oracle_path.exists()):

@@ -1,5 +1,5 @@
 """Every stage of the paper, end to end: datasets -> estimators -> PPO policies -> PD baseline
--> paired ablation -> error budget (full runs only) -> report.
+-> paired ablation -> classical controllers and error budget (full runs only) -> report.
 
     python recipes/reproduce.py --quick     # toy scale, about 4 minutes on 2 idle cores (scripts/quickstart.sh)
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
@@ -41,6 +41,7 @@ from typing import Callable
 
 from quadwind_trl.manifest import git_commit, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
+from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
@@ -118,6 +119,13 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
                                                            "--results", str(out), "--figures", str(out / "figures")),
                               out / f"ablation_{sweeps[-1]}.json",
                               needs=tuple(_stage_name(policy_run(r, kind, seed)) for kind in kinds)))
+    # the classical controllers, once per sweep (they fly no policy: no seed changes them), with the
+    # constants their validation search chose (regimes.CLASSICAL_CHOICES holds the values it wrote)
+    plan.append(Stage("base-search", ("tune_base_controllers.py",), ROOT / "results" / "base_search_vertical.json"))
+    for r, sweeps in (("horizontal", ("horizontal", "ood")), ("vertical", ("vertical",))):
+        plan.append(Stage(f"classical-{r}", ("ablation.py", "--sweeps", *sweeps, "--controllers", "pd", *CLASSICAL_CONTROLLERS,
+                                             "--results", str(ROOT / "results" / "classical")),
+                          ROOT / "results" / "classical" / f"ablation_{sweeps[-1]}.json", needs=("base-search",)))
     plan += [
         Stage("perception-value", ("perception_value.py",), ROOT / "results" / "perception_value.json"),
         Stage("ship-policies", (), CHECKPOINTS / "policy_vertical_trained_blind.pt", after=ship_median_seeds),
