@@ -60,7 +60,7 @@ from tensordict import TensorDict
 from ..config import GRAVITY_M_S2, ControllerConfig, VehicleConfig
 from .rotations import matmul, matvec, vee
 from .trajectories.library import Reference
-from .vehicle import drag_force_body
+from .vehicle import VehicleParams, drag_force_body
 
 
 @dataclass
@@ -104,7 +104,8 @@ class ClassicalParams:
     integral_limit: Tensor  # [3] m s
     disturbance: str  # ControllerConfig.disturbance
     drag_half_rho_cda: Tensor  # [3] the airframe's drag model, 1/2 rho CdA per body axis
-    observer_gain: float  # 1 - exp(-dt / observer_tau_s): the force filter's step gain
+    # 1 - exp(-dt / observer_tau_s): the force filter's step gain (a [N, 1] tensor: one per row, in a search)
+    observer_gain: float | Tensor
     motor_gain: float  # 1 - exp(-dt / motor_time_constant_s): the modelled thrust's step gain
     mass: float
     dt: float
@@ -118,8 +119,7 @@ class ClassicalParams:
             ki=t(cfg.ki_pos) if cfg.has_integral else None,
             integral_limit=t(cfg.integral_limit_m_s),
             disturbance=cfg.disturbance,
-            drag_half_rho_cda=0.5 * vehicle.air_density_kg_m3 * t(
-                (vehicle.drag_area_xy_m2, vehicle.drag_area_xy_m2, vehicle.drag_area_z_m2)),
+            drag_half_rho_cda=VehicleParams.from_config(vehicle, device).drag_half_rho_cda,  # the simulator's own
             observer_gain=-math.expm1(-dt_s / cfg.observer_tau_s),
             motor_gain=-math.expm1(-dt_s / vehicle.motor_time_constant_s),
             mass=vehicle.mass_kg,
