@@ -736,7 +736,7 @@ def classical_sweeps_section(classical: dict[str, dict], ablations: dict[str, di
         pd_means = f"PD xy {xy['distribution']['pd']['mean']:.3f} m here"
         if rl is not None:
             pd_means += f", {rl['rmse_xy']['distribution']['pd']['mean']:.3f} m in the RL file"
-        lines += [f"#### {sweep} ({result['episodes']} episodes)", "",
+        lines += [f"#### {SWEEP_TITLES.get(sweep, sweep)} sweep ({result['episodes']} episodes)", "",
                   f"`{result['command']}` at `{result['git_commit']}`; {pd_means}.", "",
                   "| controller | xy vs PD (95 % CI) | wins | z vs PD (95 % CI) | worst xy (m) | crashed |",
                   "|---|---|---|---|---|---|"]
