@@ -13,7 +13,7 @@ import argparse
 from pathlib import Path
 
 from quadwind_trl.evaluation.figures import learning_curves, results_summary
-from quadwind_trl.evaluation.report import build_report, policy_runs, read_ablations, summary_rows
+from quadwind_trl.evaluation.report import build_report, page_summary_rows, policy_runs, read_ablations
 from quadwind_trl.outputs import hold_for_command
 
 PREAMBLE = """# Results: ours beside the paper's
@@ -45,11 +45,8 @@ def main() -> None:
     if runs:
         learning_curves(runs, args.out.parent / "figures" / "learning_curves.png")
     figure = None
-    ablations = read_ablations(args.results)
-    if ablations and not args.toy:
-        seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((args.results / "seeds").glob("seed*"))}
-        drawn = results_summary(summary_rows(ablations, {k: v for k, v in seeds.items() if v}),
-                                args.out.parent / "figures" / "results_summary.png")
+    if read_ablations(args.results) and not args.toy:
+        drawn = results_summary(page_summary_rows(args.results), args.out.parent / "figures" / "results_summary.png")
         figure = drawn.relative_to(args.out.parent).as_posix()
     text = build_report(args.results, args.sections, PREAMBLE, manifests, toy=args.toy, summary_figure=figure)
     tmp = args.out.with_name(args.out.name + ".tmp")

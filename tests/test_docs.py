@@ -64,12 +64,11 @@ def test_the_issue_reference_check_finds_a_reference(tmp_path):
 
 def test_results_page_opens_with_the_summary_of_the_committed_results():
     """docs/results.md starts with the at-a-glance table and figure, rendered by recipes/report.py
-    from results/ (one row per claim, the shipped policy beside the seeds and the paper)."""
-    from quadwind_trl.evaluation.report import read_ablations, summary_rows, summary_section
+    from results/ (one row per claim, the shipped policy beside the seeds, the paper and the best
+    classical controller)."""
+    from quadwind_trl.evaluation.report import page_summary_rows, summary_section
 
-    results = ROOT / "results"
-    seeds = {p.name.removeprefix("seed"): read_ablations(p) for p in sorted((results / "seeds").glob("seed*"))}
-    rows = summary_rows(read_ablations(results), {k: v for k, v in seeds.items() if v})
+    rows = page_summary_rows(ROOT / "results")
     assert [r["label"] for r in rows][:3] == ["horizontal xy", "vertical xy", "vertical z"]
     assert rows[0]["n"] == 225 and rows[0]["seeds"]["n_seeds"] == 5 and rows[0]["paper"]["improvement"] == 48.0
     page = (ROOT / "docs" / "results.md").read_text()

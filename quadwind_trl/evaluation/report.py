@@ -801,6 +801,18 @@ def read_ablations(folder: Path) -> dict[str, dict]:
             for name in ("horizontal", "vertical", "ood") if (folder / f"ablation_{name}.json").exists()}
 
 
+def read_seed_ablations(results_dir: Path) -> dict[str, dict[str, dict]]:
+    """Every training seed's ablation files (``RESULTS/seeds/seed<k>/``), by seed name (``"0"``, ...)."""
+    seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((results_dir / "seeds").glob("seed*"))}
+    return {seed: r for seed, r in seeds.items() if r}
+
+
+def page_summary_rows(results_dir: Path) -> list[dict]:
+    """The results page's at-a-glance rows (:func:`summary_rows`) from the files in ``results_dir``."""
+    return summary_rows(read_ablations(results_dir), read_seed_ablations(results_dir),
+                        read_ablations(results_dir / "classical"), read_searches(results_dir))
+
+
 def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_manifests: dict[str, dict] | None = None,
                  toy: bool = False, summary_figure: str | None = None) -> str:
     """The whole results page: the preamble, the summary (with ``summary_figure``, a link relative
@@ -818,11 +830,9 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
         return "\n".join(parts) + "\n"
     parts = [preamble.rstrip(), ""]
     ablations = read_ablations(results_dir)
-    seeds = {path.name.removeprefix("seed"): read_ablations(path) for path in sorted((results_dir / "seeds").glob("seed*"))}
-    seeds = {seed: r for seed, r in seeds.items() if r}
+    seeds = read_seed_ablations(results_dir)
     if ablations:
-        rows = summary_rows(ablations, seeds, read_ablations(results_dir / "classical"), read_searches(results_dir))
-        parts.append(summary_section(rows, summary_figure))
+        parts.append(summary_section(page_summary_rows(results_dir), summary_figure))
     pd_file = results_dir / "pd_baseline.json"
     if pd_file.exists():
         parts.append(pd_calibration_section(json.loads(pd_file.read_text())))
