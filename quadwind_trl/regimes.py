@@ -165,6 +165,11 @@ CLASSICAL_CHOICES = {
     "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.1},
 }
 CLASSICAL_CONTROLLERS = ("pid", "dob", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff", "pid_ff_blind", "pid_ff_oracle")
+# how tables and figures name them
+CLASSICAL_LABEL = {"pid": "PD + integral", "dob": "PD + disturbance observer", "pd_ff": "PD + wind feed-forward",
+                   "pd_ff_blind": "PD + feed-forward, estimate at zero", "pd_ff_oracle": "PD + feed-forward, true wind",
+                   "pid_ff": "PID + wind feed-forward", "pid_ff_blind": "PID + feed-forward, estimate at zero",
+                   "pid_ff_oracle": "PID + feed-forward, true wind"}
 
 
 def classical_controller(regime: str, name: str) -> tuple[dict, str]:

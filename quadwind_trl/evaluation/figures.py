@@ -13,6 +13,7 @@ from tensordict import TensorDictBase  # noqa: E402
 
 from ..envs.runner import FlightResults  # noqa: E402
 from ..envs.trajectories import trajectory_id, trajectory_name  # noqa: E402
+from ..regimes import CLASSICAL_LABEL  # noqa: E402
 
 COLORS = {"pd": "tab:red", "blind": "tab:orange", "aware": "tab:blue", "oracle": "tab:green", "trained_blind": "tab:purple"}
 LABELS = {"pd": "PD baseline", "blind": "wind-blind RL", "aware": "wind-aware RL", "oracle": "true-wind oracle",
@@ -530,8 +531,9 @@ def perception_value(analyses: dict[str, dict], path: Path, variants: dict[str, 
 
 def results_summary(rows: list[dict], path: Path) -> Path:
     """The summary's claims as one chart: per claim, the RMSE reduction against PD of the shipped
-    policy (paired bootstrap 95 % interval), the mean over training seeds (95 % t-interval) and the
-    paper's figure (its interval where it states one). Rows come from
+    policy (paired bootstrap 95 % interval), the mean over training seeds (95 % t-interval), the
+    paper's figure (its interval where it states one) and the best classical controller on
+    validation where it flew the claim's sweep (paired bootstrap 95 %). Rows come from
     :func:`~quadwind_trl.evaluation.report.summary_rows`."""
     fig, a = plt.subplots(figsize=(8.5, 0.75 * len(rows) + 1.4))
     y = np.arange(len(rows))[::-1].astype(float)
@@ -549,9 +551,15 @@ def results_summary(rows: list[dict], path: Path) -> Path:
             err = None if ref["ci"] is None else [[ref["improvement"] - ref["ci"][0]], [ref["ci"][1] - ref["improvement"]]]
             a.errorbar(ref["improvement"], yi - 0.18, xerr=err, fmt="D", color="k", capsize=3,
                        label="paper" if yi == y[0] else None)
+        if row.get("classical") is not None:
+            name, c = row["classical"]
+            a.errorbar(c["improvement"], yi - 0.36, xerr=[[c["improvement"] - c["ci_low"]], [c["ci_high"] - c["improvement"]]],
+                       fmt="^", color="tab:orange", capsize=3,
+                       label=f"best classical on validation: {CLASSICAL_LABEL.get(name, name)} (bootstrap 95 %)"
+                       if yi == y[0] else None)
     a.axvline(0.0, color="gray", lw=0.8)
     a.set_yticks(y, [f"{row['label']}\n{row['n']} episodes" for row in rows], fontsize=8)
-    a.set(xlabel="RMSE reduction against PD (%; positive: RL tracks better)",
-          title="Wind-aware RL against PD on the test sweeps")
+    a.set(xlabel="RMSE reduction against PD (%; positive: tracks better than PD)",
+          title="Against PD on the test sweeps: RL, the paper, the best classical controller")
     a.legend(fontsize=8, loc="upper left")
     return _save(fig, path)

@@ -6,7 +6,7 @@ import json
 import math
 from pathlib import Path
 
-from ..regimes import SWEEP_REGIME
+from ..regimes import CLASSICAL_LABEL, SWEEP_REGIME
 from . import paper
 from .base_search import select_candidate
 from .perception import across_seeds
@@ -700,12 +700,6 @@ def classical_section(searches: dict[str, dict], manifests: dict[str, dict]) -> 
                              f"{_seed_stats([m['improvement_rmse_z_pct'] for m in ms])} | {sum(m['crashed'] for m in ms)} |")
         lines.append("")
     return "\n".join(lines)
-
-
-CLASSICAL_LABEL = {"pid": "PD + integral", "dob": "PD + disturbance observer", "pd_ff": "PD + wind feed-forward",
-                   "pd_ff_blind": "PD + feed-forward, estimate at zero", "pd_ff_oracle": "PD + feed-forward, true wind",
-                   "pid_ff": "PID + wind feed-forward", "pid_ff_blind": "PID + feed-forward, estimate at zero",
-                   "pid_ff_oracle": "PID + feed-forward, true wind"}
 
 
 def _by_wind_gain(episodes: dict, name: str) -> dict[float, float]:
