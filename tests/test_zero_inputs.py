@@ -110,12 +110,15 @@ def test_the_ppo_recipes_refuse_an_unknown_group_before_any_output(tmp_path, cap
 
 
 def test_policies_record_zero_inputs_and_older_ones_have_none(bundle):
-    recorded = spec_to_dict(RLEnvSpec(zero_inputs=NO_TILT, ema_tau_s=2.0, estimate_every_s=0.5))
-    assert policy_env_settings(recorded, bundle) == {"ema_tau_s": 2.0, "estimate_every_s": 0.5, "zero_inputs": NO_TILT}
+    recorded = spec_to_dict(RLEnvSpec(zero_inputs=NO_TILT, ema_tau_s=2.0, estimate_every_s=0.5, base_wind_input="zero"))
+    assert policy_env_settings(recorded, bundle) == {"ema_tau_s": 2.0, "estimate_every_s": 0.5, "zero_inputs": NO_TILT,
+                                                     "base_wind_input": "zero"}
     older = {key: value for key, value in recorded.items() if key != "zero_inputs"}
     assert policy_env_settings(older, bundle)["zero_inputs"] == ()
     spec = load_checkpoint(AWARE, "policy")["env_spec"]  # the shipped policies predate the setting
     assert "zero_inputs" not in spec and policy_env_settings(spec, None)["zero_inputs"] == ()
+    # nor do they record what a feed-forward base flies on (they fly the paper's PD, which reads none)
+    assert "base_wind_input" not in spec and policy_env_settings(spec, None)["base_wind_input"] == "estimate"
 
 
 def test_a_resume_with_other_inputs_is_refused():
