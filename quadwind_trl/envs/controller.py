@@ -282,8 +282,8 @@ class CascadeController:
             new["integral"] = torch.where(frozen | ~x.armed, state["integral"], integral)
         if self._observer:
             thrust_hat = state["thrust_hat"] + ex.motor_gain * (x.thrust_applied - state["thrust_hat"])
-            body = ex.mass * x.specific_force - torch.cat((torch.zeros_like(thrust_hat), torch.zeros_like(thrust_hat),
-                                                           thrust_hat), -1)
+            force = ex.mass * x.specific_force  # the thrust acts along body z alone: subtracted there only
+            body = torch.cat((force[..., :2], force[..., 2:] - thrust_hat), -1)
             raw = matvec(x.rot, body)
             force_hat = state["force_hat"] + ex.observer_gain * (raw - state["force_hat"])
             # on the ground before arming the accelerometer reads the ground's reaction: no estimate
