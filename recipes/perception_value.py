@@ -11,7 +11,8 @@ wind-aware and the trained-blind policies, and an oracle-trained one where train
 another way. Flies nothing. Writes ``results/perception_value.json`` (per sweep: per seed the
 paired value of perception and perception's share of the gain over PD, across seeds their mean,
 range and 95 % t-interval, the pooled episode-level interval, the paper's zeroing share beside;
-per variant the same and its change against the base seeds) and
+per variant the same and its change against the base seeds; per wind level what the estimate is
+worth to the wind feed-forward laws, from ``--classical``'s files) and
 ``docs/figures/perception_value.png``; ``python recipes/report.py`` renders the section
 "What the estimate is worth" from them (``quadwind_trl/evaluation/perception.py``).
 """
@@ -19,35 +20,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import sys
 from pathlib import Path
 
 from quadwind_trl.evaluation import figures
-from quadwind_trl.evaluation.perception import analyse_sweep, variant_change
+from quadwind_trl.evaluation.perception import analyse_sweep, feedforward_by_wind, read_seeds, variant_change
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEPS
-
-
-def seed_files(folder: Path, sweep: str) -> dict[str, Path]:
-    """``seed -> FOLDER/seed<k>/ablation_<sweep>.json`` for the seeds that have it, by seed number."""
-    found = {path.parent.name.removeprefix("seed"): path for path in folder.glob(f"seed*/ablation_{sweep}.json")
-             if re.fullmatch(r"seed\d+", path.parent.name)}
-    return dict(sorted(found.items(), key=lambda kv: int(kv[0])))
-
-
-def read_seeds(folder: Path, sweep: str) -> tuple[dict[str, dict], dict[str, dict]]:
-    """The parsed results files of :func:`seed_files`, and what each is (path, the commit that flew
-    it, its policies) for the provenance record."""
-    results, read = {}, {}
-    for seed, path in seed_files(folder, sweep).items():
-        results[seed] = json.loads(path.read_text())
-        # every policy the file names (policy, blind_policy, and whatever names the oracle-trained one)
-        policies = {key: value for key, value in results[seed].items() if key.endswith("policy")}
-        read[seed] = {"file": repo_relative(path), "git_commit": results[seed].get("git_commit"),
-                      "controllers": results[seed].get("controllers"), **policies}
-    return results, read
 
 
 def parse_variant(text: str) -> tuple[str, Path]:
@@ -64,6 +44,9 @@ def main() -> None:
                         help="default: every sweep the seeds flew")
     parser.add_argument("--variant", type=parse_variant, action="append", default=[], metavar="NAME=DIR",
                         help="a policy variant's seed folders (repeatable)")
+    parser.add_argument("--classical", type=Path, default=Path("results/classical"),
+                        help="the classical controllers' ablation files (ablation_<sweep>.json): what the estimate "
+                             "is worth to the wind feed-forward laws, beside the policies' value (skipped where absent)")
     parser.add_argument("--out", type=Path, default=Path("results/perception_value.json"))
     parser.add_argument("--figure", type=Path, default=Path("docs/figures/perception_value.png"))
     parser.add_argument("--resamples", type=int, default=10_000, help="bootstrap resamples per paired interval")
@@ -79,6 +62,12 @@ def main() -> None:
         if results:
             sweeps[sweep] = analyse_sweep(results, resamples=args.resamples)
             inputs["base"][sweep] = read
+            classical_file = args.classical / f"ablation_{sweep}.json"
+            if classical_file.exists():
+                classical = json.loads(classical_file.read_text())
+                sweeps[sweep]["feedforward"] = {
+                    "file": repo_relative(classical_file), "git_commit": classical.get("git_commit"),
+                    "by_wind": feedforward_by_wind(classical, results, resamples=args.resamples)}
     if not sweeps:
         parser.error(f"no seed<k>/ablation_<sweep>.json under {args.seeds} for the sweeps {', '.join(args.sweeps)}")
     variants = {}

@@ -9,9 +9,9 @@ import torch
 from scipy import stats
 from tensordict import TensorDict
 
-from quadwind_trl.evaluation.perception import analyse_sweep, t_interval, variant_change
+from quadwind_trl.evaluation.perception import analyse_sweep, feedforward_by_wind, t_interval, variant_change
 from quadwind_trl.evaluation.phases import PhaseConfig, masked_sse_xy, phase_masks, phase_rmse
-from quadwind_trl.evaluation.report import perception_section
+from quadwind_trl.evaluation.report import feedforward_value_table, perception_section
 
 DT = 0.1  # the 10 Hz record
 SPEED = 10.0  # m/s, the patterns' cruise speed
@@ -232,3 +232,34 @@ def test_the_figure_draws_each_variant_beside_the_base_seeds(analysis, monkeypat
     assert any(t.startswith("no_attitude_accel: zeroing share (n = 2 seeds)") for t in labels[1])
     assert not any("other_sweep_only" in t for t in labels[0] + labels[1])  # a variant that did not fly the sweep
     plt.close(drawn["fig"])
+
+
+def _classical(estimate: float, oracle: float) -> dict:
+    """A classical controllers' file of the seeds' episodes: PID + feed-forward on the estimate
+    removes ``estimate`` of its blind twin's RMSE on every episode, on the true wind ``oracle`` of
+    the estimate's."""
+    table = {k: v for k, v in _seed(0.0, None, False)["episodes_table"].items() if not k.endswith("_rmse_xy")}
+    blind = torch.linspace(0.4, 0.9, len(table["case_id"]), dtype=torch.float64)
+    table["pid_ff_blind_rmse_xy"] = blind.tolist()
+    table["pid_ff_rmse_xy"] = ((1 - estimate) * blind).tolist()
+    table["pid_ff_oracle_rmse_xy"] = ((1 - oracle) * (1 - estimate) * blind).tolist()
+    return {"sweep": "horizontal", "controllers": ["pid_ff", "pid_ff_blind", "pid_ff_oracle"], "episodes_table": table}
+
+
+def test_the_feedforward_value_is_paired_per_wind_level_and_rendered_beside_the_policies(analysis):
+    seeds = {"0": _seed(0.1, None)}
+    ff = feedforward_by_wind(_classical(0.25, 0.04), seeds, resamples=50)
+    assert sorted(ff) == ["4", "6", "all"]
+    for row in ff.values():
+        assert row["pid_ff"]["estimate_value"]["improvement"] == pytest.approx(25.0)
+        assert row["pid_ff"]["oracle_value"]["improvement"] == pytest.approx(4.0)
+    assert ff["4"]["pid_ff"]["estimate_value"]["n"] == PER_WIND and ff["all"]["pid_ff"]["estimate_value"]["wins"] == 8
+    other = _classical(0.25, 0.04)
+    other["episodes_table"]["case_id"] = other["episodes_table"]["case_id"][::-1]
+    with pytest.raises(ValueError, match="other episodes"):
+        feedforward_by_wind(other, seeds, resamples=10)
+    rows = feedforward_value_table({**analysis, "feedforward": {"file": "results/classical/ablation_horizontal.json",
+                                                                "git_commit": "abc", "by_wind": ff}})
+    table = [r for r in rows if r.startswith("| ")]
+    assert table[0].count("|") == 5  # U, the policies' value, the estimate's and the true wind's to PID + FF
+    assert table[-1].startswith("| all | +20.0 | +25.0 (") and "8/8" in table[-1]

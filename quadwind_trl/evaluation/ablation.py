@@ -228,6 +228,22 @@ def _grouped_decomposition(table: TensorDictBase, metric: str, labels: torch.Ten
     return out
 
 
+def feedforward_comparisons(controllers: Sequence[str]) -> dict[tuple[str, str], tuple[str, str]]:
+    """``(law, value) -> (baseline, other)`` for each wind feed-forward law among ``controllers``
+    whose twin flew too, paired with ``other`` better when positive: ``estimate_value``, the law
+    on the estimate against its blind twin (what the estimate is worth to a law that cannot
+    learn), and ``oracle_value``, the law on the true wind against the estimate (what a perfect
+    estimate would add)."""
+    flown = set(controllers)
+    out = {}
+    for law in ("pd_ff", "pid_ff"):
+        if {law, f"{law}_blind"} <= flown:
+            out[(law, "estimate_value")] = (f"{law}_blind", law)
+        if {law, f"{law}_oracle"} <= flown:
+            out[(law, "oracle_value")] = (law, f"{law}_oracle")
+    return out
+
+
 def summarize_ablation(sweep_name: str, table: TensorDictBase, controllers: Sequence[str]) -> dict:
     """Everything the paper's tables need, JSON-ready, from an :func:`episode_table`: paired
     statistics of each policy variant against PD, the decomposition by wind level and by
@@ -250,14 +266,9 @@ def summarize_ablation(sweep_name: str, table: TensorDictBase, controllers: Sequ
             # the wind-aware policy against each classical controller, paired (positive: RL better)
             block["aware_vs_classical"] = {c: paired_summary(table[f"{c}_{metric}"], table[f"aware_{metric}"])
                                            for c in classical}
-        for law in ("pd_ff", "pid_ff"):
-            for twin, key in ((f"{law}_blind", "estimate_value"), (f"{law}_oracle", "oracle_value")):
-                if {law, twin} <= set(names):
-                    # the estimate's worth to a law that cannot learn: the feed-forward on the
-                    # estimate against its blind twin; a perfect estimate's: the oracle against the estimate
-                    pair = (table[f"{twin}_{metric}"], table[f"{law}_{metric}"]) if key == "estimate_value" else (
-                        table[f"{law}_{metric}"], table[f"{twin}_{metric}"])
-                    block.setdefault("feedforward", {}).setdefault(law, {})[key] = paired_summary(*pair)
+        for (law, key), (baseline, other) in feedforward_comparisons(names).items():
+            block.setdefault("feedforward", {}).setdefault(law, {})[key] = paired_summary(
+                table[f"{baseline}_{metric}"], table[f"{other}_{metric}"])
         if {"trained_blind", "trained_oracle"} <= set(names):
             # the policy trained on the true wind vs the one trained without: a perfect estimate's value
             block["trained_oracle_vs_trained_blind"] = paired_summary(table[f"trained_blind_{metric}"],

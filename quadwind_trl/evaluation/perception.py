@@ -21,7 +21,10 @@ same seeds, by a paired t-interval over the per-seed differences. All outputs ar
 """
 from __future__ import annotations
 
+import json
 import math
+import re
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import torch
@@ -29,8 +32,9 @@ from scipy import stats
 from tensordict import TensorDictBase
 from torch import Tensor
 
+from ..manifest import repo_relative
 from . import paper
-from .ablation import episode_table_from_json
+from .ablation import episode_table_from_json, feedforward_comparisons
 from .phases import PHASES, phase_rmse
 from .statistics import decompose, paired_summary
 
@@ -86,20 +90,23 @@ def _finite(columns: Sequence[Tensor], mask: Tensor) -> list[Tensor] | None:
     return [column[keep] for column in columns] if bool(keep.any()) else None
 
 
-def seed_values(table: TensorDictBase, column: str = METRIC, resamples: int = 10_000) -> dict[str, dict]:
+def seed_values(table: TensorDictBase, column: str = METRIC, resamples: int = 10_000,
+                comparisons: Mapping[str, tuple[str, str]] = COMPARISONS,
+                shares: Mapping[str, str] = SHARES) -> dict[str, dict]:
     """One seed's episode table: per group of :func:`wind_groups`, the paired summary of every
-    comparison of :data:`COMPARISONS` and every share of :data:`SHARES` whose controllers it flew,
-    on ``<controller>_<column>`` (None where no episode of the group has them all finite)."""
+    comparison (default :data:`COMPARISONS`) and every share (default :data:`SHARES`) whose
+    controllers it flew, on ``<controller>_<column>`` (None where no episode of the group has them
+    all finite)."""
     keys = set(table.keys())
     out: dict[str, dict] = {}
     for group, mask in wind_groups(table).items():
         row = {}
-        for name, (baseline, other) in COMPARISONS.items():
+        for name, (baseline, other) in comparisons.items():
             columns = [f"{baseline}_{column}", f"{other}_{column}"]
             if set(columns) <= keys:
                 pair = _finite([table[c] for c in columns], mask)
                 row[name] = None if pair is None else paired_summary(*pair, resamples=resamples)
-        for name, blind in SHARES.items():
+        for name, blind in shares.items():
             columns = [f"{c}_{column}" for c in ("pd", blind, "aware")]
             if set(columns) <= keys:
                 steps = _finite([table[c] for c in columns], mask)
@@ -127,22 +134,24 @@ def _check_same_episodes(tables: Mapping[str, TensorDictBase]) -> None:
                              f"({table.batch_size[0]} vs {reference.batch_size[0]} episodes): the seeds must fly the same sweep")
 
 
-def summarise_column(tables: Mapping[str, TensorDictBase], column: str, resamples: int = 10_000) -> dict:
+def summarise_column(tables: Mapping[str, TensorDictBase], column: str, resamples: int = 10_000,
+                     comparisons: Mapping[str, tuple[str, str]] = COMPARISONS,
+                     shares: Mapping[str, str] = SHARES) -> dict:
     """Per group: for each comparison its per-seed summaries, the seed-level statistics of their
     improvements (:func:`across_seeds`) and the pooled summary; for each share its per-seed values
     and their seed-level statistics."""
-    per_seed = {seed: seed_values(table, column, resamples) for seed, table in tables.items()}
+    per_seed = {seed: seed_values(table, column, resamples, comparisons, shares) for seed, table in tables.items()}
     groups = wind_groups(next(iter(tables.values())))
     out: dict[str, dict] = {}
     for group, mask in groups.items():
         row = {}
-        for name, (baseline, other) in COMPARISONS.items():
+        for name, (baseline, other) in comparisons.items():
             seeds = {s: v[group][name] for s, v in per_seed.items() if v[group].get(name) is not None}
             if seeds:
                 row[name] = {"per_seed": seeds,
                              "across_seeds": across_seeds({s: b["improvement"] for s, b in seeds.items()}),
                              "pooled": _pooled(tables, f"{baseline}_{column}", f"{other}_{column}", mask, resamples)}
-        for name in SHARES:
+        for name in shares:
             seeds = {s: v[group][name] for s, v in per_seed.items() if v[group].get(name) is not None}
             if seeds:
                 row[name] = {"per_seed": seeds, "across_seeds": across_seeds(seeds)}
@@ -168,11 +177,13 @@ def with_phase_rmse(table: TensorDictBase) -> TensorDictBase:
     return table
 
 
-def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000) -> dict:
+def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000,
+                  comparisons: Mapping[str, tuple[str, str]] = COMPARISONS, shares: Mapping[str, str] = SHARES) -> dict:
     """The value of perception on one sweep from each seed's ablation results file (``seed ->
     the parsed ablation_<sweep>.json``): per wind level and ``"all"`` (:func:`summarise_column`
     on :data:`METRIC`, the paper's zeroing share beside), and per flight phase where the files
-    hold phase columns (``<controller>_sse_xy_<phase>`` and ``_samples_<phase>``, :mod:`~quadwind_trl.evaluation.phases`)."""
+    hold phase columns (``<controller>_sse_xy_<phase>`` and ``_samples_<phase>``, :mod:`~quadwind_trl.evaluation.phases`).
+    Other ``comparisons`` and ``shares`` ask other questions of the same files."""
     if not results:
         raise ValueError("analyse_sweep: no seeds given")
     sweeps = {r["sweep"] for r in results.values()}
@@ -189,13 +200,34 @@ def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000) -> dict:
         "level": LEVEL,
         "seeds": list(results),
         "episodes": next(iter(tables.values())).batch_size[0],
-        "by_wind": _with_paper(summarise_column(tables, METRIC, resamples), sweep),
-        "by_phase": {p: summarise_column(tables, f"{METRIC}_{p}", resamples) for p in phases},
+        "by_wind": _with_paper(summarise_column(tables, METRIC, resamples, comparisons, shares), sweep),
+        "by_phase": {p: summarise_column(tables, f"{METRIC}_{p}", resamples, comparisons, shares) for p in phases},
         # how much of a flight each phase is: the wind-aware policy's samples, per episode and seed
         "phase_samples_per_episode": {
             p: torch.cat([t[f"aware_samples_{p}"] for t in tables.values() if f"aware_samples_{p}" in t.keys()]).double().mean().item()
             for p in phases if f"aware_samples_{p}" in keys},
     }
+
+
+def feedforward_by_wind(classical: dict, seeds: Mapping[str, dict] | None = None, resamples: int = 10_000) -> dict:
+    """What the estimate is worth to the wind feed-forward laws (no learning) on one sweep, from
+    the classical controllers' results file (``results/classical/ablation_<sweep>.json``): per
+    group of :func:`wind_groups`, ``{law: {value: paired summary}}`` for each comparison of
+    :func:`~quadwind_trl.evaluation.ablation.feedforward_comparisons`, on :data:`METRIC`.
+    Given the seeds' results files of the same sweep, checks that the file flew their episodes."""
+    table = episode_table_from_json(classical["episodes_table"])
+    if seeds:
+        reference = episode_table_from_json(next(iter(seeds.values()))["episodes_table"])
+        _check_same_episodes({"classical": table, "seeds": reference})
+    comparisons = feedforward_comparisons(classical["controllers"])
+    out: dict[str, dict] = {}
+    for group, mask in wind_groups(table).items():
+        row: dict = {}
+        for (law, value), (baseline, other) in comparisons.items():
+            pair = _finite([table[f"{baseline}_{METRIC}"], table[f"{other}_{METRIC}"]], mask)
+            row.setdefault(law, {})[value] = None if pair is None else paired_summary(*pair, resamples=resamples)
+        out[group] = row
+    return out
 
 
 def variant_change(base: dict, variant: dict, comparison: str = "aware_vs_trained_blind") -> dict:
@@ -219,3 +251,23 @@ def variant_change(base: dict, variant: dict, comparison: str = "aware_vs_traine
                       "variant_mean": sum(v[seed]["improvement"] for seed in seeds) / len(seeds),
                       "change": sum(diffs) / len(diffs), "t_low": low, "t_high": high}
     return out
+
+
+def seed_files(folder: Path, sweep: str) -> dict[str, Path]:
+    """``seed -> FOLDER/seed<k>/ablation_<sweep>.json`` for the seeds that have it, by seed number."""
+    found = {path.parent.name.removeprefix("seed"): path for path in folder.glob(f"seed*/ablation_{sweep}.json")
+             if re.fullmatch(r"seed\d+", path.parent.name)}
+    return dict(sorted(found.items(), key=lambda kv: int(kv[0])))
+
+
+def read_seeds(folder: Path, sweep: str) -> tuple[dict[str, dict], dict[str, dict]]:
+    """The parsed results files of :func:`seed_files`, and what each is (path, the commit that flew
+    it, its policies) for the provenance record."""
+    results, read = {}, {}
+    for seed, path in seed_files(folder, sweep).items():
+        results[seed] = json.loads(path.read_text())
+        # every policy the file names (policy, blind_policy, and whatever names the oracle-trained one)
+        policies = {key: value for key, value in results[seed].items() if key.endswith("policy")}
+        read[seed] = {"file": repo_relative(path), "git_commit": results[seed].get("git_commit"),
+                      "controllers": results[seed].get("controllers"), **policies}
+    return results, read

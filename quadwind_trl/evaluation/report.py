@@ -438,6 +438,8 @@ def perception_sweep_tables(analysis: dict) -> list[str]:
             lines.append(f"| {key} |" + "".join(f" {_seed_cells(row.get(k))} |" for k in shares)
                          + (" - |" if ref is None else f" {ref:.1f} |"))
         lines.append("")
+    if analysis.get("feedforward"):
+        lines += feedforward_value_table(analysis)
     every = by_wind["all"]
     lines += ["Each seed over all episodes (paired bootstrap 95 % interval):", "",
               "| seed |" + "".join(f" {PERCEPTION_VALUES[v]} |" for v in values) + "".join(f" {PERCEPTION_SHARES[k]} |" for k in shares),
@@ -451,6 +453,32 @@ def perception_sweep_tables(analysis: dict) -> list[str]:
     for value in _present({p: g["all"] for p, g in analysis["by_phase"].items()}, PERCEPTION_VALUES):
         lines += perception_phase_table(analysis, value)
     return lines
+
+
+FEEDFORWARD_VALUES = {"estimate_value": "the estimate against zero", "oracle_value": "the true wind against the estimate"}
+
+
+def feedforward_value_table(analysis: dict) -> list[str]:
+    """The estimate's worth to the wind feed-forward laws per wind level (the classical
+    controllers' file, ``analysis["feedforward"]``) beside the policies' value of perception."""
+    ff = analysis["feedforward"]
+    laws = sorted({law for row in ff["by_wind"].values() for law in row})
+    columns = [(law, value) for law in laws for value in FEEDFORWARD_VALUES if any(
+        (row.get(law) or {}).get(value) for row in ff["by_wind"].values())]
+    rl = analysis["by_wind"]
+    lines = ["The same question asked of a law that cannot learn: wind feed-forward (the airframe's drag model on the",
+             f"estimate) against its blind twin, and the true mean wind against the estimate (`{ff['file']}`, flown at",
+             f"`{ff['git_commit']}`; % of the first law's xy RMSE the second removes, paired bootstrap 95 % interval, wins),",
+             "beside the policies' value of perception (seed mean) from the table above:", "",
+             "| U (m/s) | wind-aware vs trained blind RL |" + "".join(
+                 f" {CLASSICAL_LABEL.get(law, law)}: {FEEDFORWARD_VALUES[value]} |" for law, value in columns),
+             "|---|---|" + "---|" * len(columns)]
+    for key, row in _wind_rows(ff["by_wind"]):
+        policy = (rl.get(key) or {}).get("aware_vs_trained_blind")
+        cell = "-" if policy is None else f"{policy['across_seeds']['mean']:+.1f}"
+        lines.append(f"| {key} | {cell} |" + "".join(f" {_paired_cell((row.get(law) or {}).get(value))} |"
+                                                    for law, value in columns))
+    return lines + [""]
 
 
 def perception_phase_table(analysis: dict, value: str) -> list[str]:
@@ -518,6 +546,79 @@ def perception_section(result: dict) -> str:
     if result.get("variants"):
         lines += perception_variants_table(result["variants"])
     lines += [f"![value of the estimate](figures/{Path(result.get('figure', 'perception_value.png')).name})", ""]
+    return "\n".join(lines)
+
+
+RESIDUAL_VALUES = {"aware_vs_base": "wind-aware residual vs its base", "trained_blind_vs_base": "trained-blind residual vs its base",
+                   "aware_vs_trained_blind": "wind-aware vs trained-blind residual", "aware_vs_paper_pd": "wind-aware residual vs PD"}
+#: the goal set for the method against the best classical controller: xy gain (%), share of
+#: episodes won, and z no worse (an improvement >= 0)
+RESIDUAL_GOAL = {"xy_pct": 25.0, "win_share": 200 / 225}
+
+
+def _goal_line(sweep: str, analysis: dict) -> str:
+    """Whether each seed's wind-aware residual meets :data:`RESIDUAL_GOAL` against its base (on the
+    out-of-distribution sweep: a worst episode below the base's)."""
+    overall = analysis["overall"]
+    if sweep == "ood":
+        met = [s for s, o in overall.items() if o["rmse_xy"]["worst"]["aware"] < o["rmse_xy"]["worst"]["base"]]
+        return (f"Goal (worst xy episode below the base's): met by {len(met)} of {len(overall)} seeds"
+                + (f" ({', '.join(met)})." if met else "."))
+    met = [s for s, o in overall.items() if o["rmse_xy"]["aware_vs_base"]["improvement"] >= RESIDUAL_GOAL["xy_pct"]
+           and o["rmse_xy"]["aware_vs_base"]["wins"] >= RESIDUAL_GOAL["win_share"] * o["rmse_xy"]["aware_vs_base"]["n"]
+           and o["rmse_z"]["aware_vs_base"]["improvement"] >= 0.0]
+    return (f"Goal (xy >= {RESIDUAL_GOAL['xy_pct']:.0f} % over the base with >= {RESIDUAL_GOAL['win_share']:.0%} of the "
+            f"episodes won, z no worse): met by {len(met)} of {len(overall)} seeds" + (f" ({', '.join(met)})." if met else "."))
+
+
+def residual_section(result: dict) -> str:
+    """"The residual on the best classical base" from ``results/residual_<base>.json``
+    (``recipes/residual_value.py``): per sweep and seed the residual against its base and PD on
+    both axes, across seeds per wind level and flight phase, and the goal set for the method."""
+    base = result["base"]
+    label = CLASSICAL_LABEL.get(base, base)
+    lines = [f"## The residual on the best classical base: {label}", "",
+             f"Command: `{result['command']}` (commit `{result.get('git_commit')}`); it flies nothing. Policies trained with",
+             f"`--base-controller {base}` (the shipped recipe otherwise), wind-aware and trained blind, one paired ablation per",
+             f"seed (`results/residual/{base}/seed<k>/`), joined episode by episode with the classical controllers' file of the",
+             f"sweep, which flew PD and the {label} alone on the same episodes. *Base* = the zero residual, i.e. the {label}",
+             "alone; improvements are the share of the first controller's RMSE the second removes (positive: the second tracks",
+             "better), per seed with the paired bootstrap 95 % interval and wins, across seeds the mean (range) and a Student-t",
+             "95 % interval over the seed values.", ""]
+    for sweep, analysis in _in_sweep_order(result["sweeps"]):
+        title = SWEEP_TITLES.get(sweep, sweep)
+        lines += [f"### {title} sweep ({analysis['episodes']} episodes, seeds {', '.join(analysis['seeds'])})", "",
+                  "| seed | residual vs base, xy | z | trained blind vs base, xy | aware vs trained blind, xy | residual vs PD, xy | z "
+                  "| worst xy (m): PD / base / residual | crashed: PD / base / residual |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for seed, o in analysis["overall"].items():
+            xy, z = o["rmse_xy"], o["rmse_z"]
+            worst = " / ".join(f"{xy['worst'][c]:.2f}" for c in ("paper_pd", "base", "aware"))
+            crashed = " / ".join(str(o["crashed"][c]) for c in ("paper_pd", "base", "aware"))
+            lines.append(f"| {seed} | {_paired_cell(xy.get('aware_vs_base'))} | {_paired_cell(z.get('aware_vs_base'))} | "
+                         f"{_paired_cell(xy.get('trained_blind_vs_base'))} | {_paired_cell(xy.get('aware_vs_trained_blind'))} | "
+                         f"{_paired_cell(xy.get('aware_vs_paper_pd'))} | {_paired_cell(z.get('aware_vs_paper_pd'))} | "
+                         f"{worst} | {crashed} |")
+        lines += ["", _goal_line(sweep, analysis), ""]
+        values = _present(analysis["by_wind"], RESIDUAL_VALUES)
+        lines += ["xy by wind level (% of the first controller's RMSE removed; seed mean (range) | 95 % t (seeds)):", "",
+                  "| U (m/s) |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
+                  "|---|" + "---|" * (2 * len(values))]
+        lines += [f"| {key} |" + "".join(f" {_seed_cells(row.get(v))} |" for v in values)
+                  for key, row in _wind_rows(analysis["by_wind"])]
+        phases = analysis["by_phase"]
+        if phases:
+            lines += ["", "xy by flight phase over all episodes (seed mean (range) | 95 % t (seeds)):", "",
+                      "| phase |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
+                      "|---|" + "---|" * (2 * len(values))]
+            lines += [f"| {phase} |" + "".join(f" {_seed_cells(groups['all'].get(v))} |" for v in values)
+                      for phase, groups in phases.items()]
+        checks = analysis["zero_residual"]
+        bitwise = [s for s, c in checks.items() if c["bitwise"]]
+        largest = max(c["max_abs_diff_m"]["rmse_xy"] for c in checks.values())
+        lines += ["", f"The zero residual against the classical file's {label} row (the same law on the same episodes): "
+                      f"equal to the bit for seeds {', '.join(bitwise) or 'none'}; largest per-episode xy difference "
+                      f"{largest:.2g} m.", ""]
     return "\n".join(lines)
 
 
@@ -655,6 +756,13 @@ def _seed_stats(values: list[float]) -> str:
     return f"{sum(values) / len(values):+.1f} % ({min(values):+.1f} to {max(values):+.1f})"
 
 
+def _on_pd(manifest: dict) -> bool:
+    """Whether a policy's manifest trained its residual on the paper's PD (no classical addition;
+    manifests older than the additions have none)."""
+    controller = manifest.get("env_spec", {}).get("env_config", {}).get("controller", {})
+    return controller.get("disturbance", "none") == "none" and not any(controller.get("ki_pos", ()))
+
+
 def classical_section(searches: dict[str, dict], manifests: dict[str, dict]) -> str:
     """"Against classical controllers": each regime's validation search
     (``results/base_search_<regime>.json``, recipes/tune_base_controllers.py), every candidate
@@ -687,7 +795,7 @@ def classical_section(searches: dict[str, dict], manifests: dict[str, dict]) -> 
                              f"{row['validation_score']:.3f} | {row['rmse_xy']:.3f} | {row['improvement_xy_pct']:+.1f} % | "
                              f"{row['rmse_z']:.3f} | {row['improvement_z_pct']:+.1f} % | {row['wins']}/{row['episodes']} | "
                              f"{row['crashed']} |")
-        runs = {kind: [m["metrics"] for name, m in manifests.items() if name.startswith(f"ppo_{regime}")
+        runs = {kind: [m["metrics"] for name, m in manifests.items() if name.startswith(f"ppo_{regime}") and _on_pd(m)
                        and m.get("env_spec", {}).get("wind_input") == wind and m.get("metrics")] for kind, wind in POLICY_KINDS}
         runs = {kind: ms for kind, ms in runs.items() if ms}
         if runs:
@@ -850,6 +958,8 @@ def build_report(results_dir: Path, sections_dir: Path, preamble: str, policy_ma
     perception = results_dir / "perception_value.json"
     if perception.exists():
         parts.append(perception_section(json.loads(perception.read_text())))
+    for residual in sorted(results_dir.glob("residual_*.json")):
+        parts.append(residual_section(json.loads(residual.read_text())))
     times = results_dir / "pipeline_times.json"
     if times.exists():
         parts.append(pipeline_section(json.loads(times.read_text())))

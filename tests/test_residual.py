@@ -1,0 +1,89 @@
+"""The residual on a classical base against that base and the paper's PD: the join of a seed's
+ablation file with the classical controllers' file, and its statistics."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from quadwind_trl.evaluation.residual import analyse_residual, joined_episodes, zero_residual_check
+
+N = 6
+PLATFORM = {"cpu": "test", "vector_isa": "AVX2"}
+
+
+def _world() -> dict:
+    return {"trajectory": ["loiter_circle_h"] * N, "case_id": list(range(N)), "turb_intensity": [0.1] * N,
+            "wind_speed_ref_m_s": [4.0] * (N // 2) + [8.0] * (N // 2)}
+
+
+def _rows(name: str, xy: torch.Tensor, z: torch.Tensor, crashed: int = 0) -> dict:
+    return {f"{name}_rmse_xy": xy.tolist(), f"{name}_rmse_z": z.tolist(), f"{name}_rmse": (xy + z).tolist(),
+            f"{name}_crashed": [i < crashed for i in range(N)]}
+
+
+BASE_XY = torch.linspace(0.3, 0.8, N, dtype=torch.float64)
+BASE_Z = torch.linspace(0.1, 0.2, N, dtype=torch.float64)
+
+
+def _classical() -> dict:
+    table = _world() | _rows("pd", 2.0 * BASE_XY, 2.0 * BASE_Z, crashed=1) | _rows("dob", BASE_XY, BASE_Z)
+    return {"sweep": "horizontal", "controllers": ["pd", "dob"], "episodes_table": table, "platform": PLATFORM, "batch": N}
+
+
+def _residual(aware: float, blind: float) -> dict:
+    """A seed's residual ablation: its zero residual is the observer's row; the wind-aware
+    residual removes ``aware`` of the base's xy RMSE on every episode, the trained-blind ``blind``;
+    both keep the base's height error."""
+    table = (_world() | _rows("pd", BASE_XY, BASE_Z) | _rows("aware", (1 - aware) * BASE_XY, BASE_Z)
+             | _rows("trained_blind", (1 - blind) * BASE_XY, BASE_Z))
+    return {"sweep": "horizontal", "controllers": ["pd", "aware", "trained_blind"], "episodes_table": table,
+            "platform": PLATFORM, "batch": N}
+
+
+def test_the_residual_is_paired_with_its_base_and_with_the_papers_pd():
+    analysis = analyse_residual({"0": _residual(0.2, 0.1), "1": _residual(0.3, 0.1)}, _classical(), "dob", resamples=50)
+    every = analysis["by_wind"]["all"]
+    assert every["aware_vs_base"]["across_seeds"]["mean"] == pytest.approx(25.0)
+    assert every["trained_blind_vs_base"]["across_seeds"]["mean"] == pytest.approx(10.0)
+    # against a PD with twice the base's error: 1 - (1 - a) / 2
+    assert every["aware_vs_paper_pd"]["per_seed"]["0"]["improvement"] == pytest.approx(60.0)
+    assert every["aware_vs_trained_blind"]["per_seed"]["1"]["improvement"] == pytest.approx(100 * (1 - 0.7 / 0.9))
+    assert sorted(analysis["by_wind"]) == ["4", "8", "all"] and analysis["base"] == "dob"
+    overall = analysis["overall"]["0"]
+    assert overall["rmse_xy"]["aware_vs_base"]["wins"] == N and overall["rmse_xy"]["aware_vs_base"]["n"] == N
+    assert overall["rmse_z"]["aware_vs_base"]["improvement"] == pytest.approx(0.0)
+    assert overall["rmse_z"]["aware_vs_paper_pd"]["improvement"] == pytest.approx(50.0)
+    assert overall["rmse_xy"]["worst"] == pytest.approx({"paper_pd": 1.6, "base": 0.8, "aware": 0.64, "trained_blind": 0.72})
+    assert overall["crashed"] == {"paper_pd": 1, "base": 0, "aware": 0, "trained_blind": 0}
+    assert analysis["zero_residual"]["0"] == {"max_abs_diff_m": {"rmse_xy": 0.0, "rmse_z": 0.0}, "bitwise": True,
+                                              "same_platform": True, "same_batch": True}
+
+
+def test_a_zero_residual_off_the_base_row_is_measured():
+    residual = _residual(0.2, 0.1)
+    residual["episodes_table"]["pd_rmse_xy"][2] += 1e-6
+    check = zero_residual_check(residual, _classical(), "dob")
+    assert not check["bitwise"] and check["max_abs_diff_m"]["rmse_xy"] == pytest.approx(1e-6)
+
+
+def test_files_of_other_episodes_or_without_the_base_are_refused():
+    residual = _residual(0.2, 0.1)
+    residual["episodes_table"]["wind_speed_ref_m_s"] = residual["episodes_table"]["wind_speed_ref_m_s"][::-1]
+    with pytest.raises(ValueError, match="column 'wind_speed_ref_m_s' differs"):
+        joined_episodes(residual, _classical(), "dob")
+    with pytest.raises(ValueError, match="not the base 'pid'"):
+        joined_episodes(_residual(0.2, 0.1), _classical(), "pid")
+
+
+def test_the_report_section_renders_every_seed_the_goal_and_the_check():
+    from quadwind_trl.evaluation.report import residual_section
+
+    analysis = analyse_residual({"0": _residual(0.2, 0.1), "1": _residual(0.3, 0.1)}, _classical(), "dob", resamples=50)
+    text = residual_section({"command": "python recipes/residual_value.py --base dob", "git_commit": "abc", "base": "dob",
+                             "sweeps": {"horizontal": analysis}})
+    rows = [line for line in text.splitlines() if line.startswith("| ")]
+    assert any(r.startswith("| 0 | +20.0 (") and r.endswith("| 1.60 / 0.80 / 0.64 | 1 / 0 / 0 |") for r in rows)
+    # seed 1 removes 30 % with every episode won and z unchanged; seed 0 falls short of 25 %
+    assert "met by 1 of 2 seeds (1)." in text
+    assert any(r.startswith("| all | +25.0 (+20.0 to +30.0) |") for r in rows)
+    assert "equal to the bit for seeds 0, 1" in text
