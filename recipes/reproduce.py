@@ -20,7 +20,10 @@ shared machine (its load is recorded beside it).
 blind (:data:`POLICY_KINDS`), and three oracle-trained horizontal ones (:data:`ORACLE_SEEDS`),
 keeps every seed's policy in ``results/policies/``, flies every seed's paired ablation
 (``results/seeds/seed<k>/``), measures what the estimate is worth across them
-(``perception-value``), then ships the median seed of each
+(``perception-value``), tunes and flies the classical controllers (``base-search``,
+``classical-<regime>``), trains the residual on the best of them with three seeds
+(:data:`RESIDUAL_BASE`, :data:`RESIDUAL_SEEDS`) and measures it against that base and PD
+(``results/residual/<base>/seed<k>/``, ``residual-<base>-value``), then ships the median seed of each
 (``ship-policies``: ``quadwind_trl/checkpoints/policy_<regime>[_trained_blind].pt``, and its
 ablations as ``results/ablation_<sweep>.json``).
 """
@@ -102,6 +105,7 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
     ]
     trained = [(r, kind, seed) for kind in POLICY_KINDS for seed in SEEDS for r in REGIMES]
     trained += [("horizontal", ORACLE_KIND, seed) for seed in ORACLE_SEEDS]
+    trained += [(r, kind, seed) for kind in RESIDUAL_KINDS for seed in RESIDUAL_SEEDS for r in REGIMES]
     for r, kind, seed in trained:
         run = policy_run(r, kind, seed)
         plan.append(Stage(_stage_name(run), (PPO_RECIPES[r], "--out", str(run), "--seed", str(seed), *TRAINING_OPTIONS[kind],
@@ -111,7 +115,7 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
         # each seed's wind-aware and trained-blind (and oracle-trained) policies on all three
         # sweeps, every controller; per regime, so a seed's horizontal flights need no vertical policy
         out = SEED_RESULTS / f"seed{seed}"
-        for r, sweeps in (("horizontal", ("horizontal", "ood")), ("vertical", ("vertical",))):
+        for r, sweeps in REGIME_SWEEPS:
             kinds = (*POLICY_KINDS, *((ORACLE_KIND,) if r == "horizontal" and seed in ORACLE_SEEDS else ()))
             oracle = ("--oracle-policy", str(kept_policy(r, ORACLE_KIND, seed))) if ORACLE_KIND in kinds else ()
             plan.append(Stage(f"ablation-seed{seed}-{r}", ("ablation.py", "--sweeps", *sweeps, "--policy", str(kept_policy(r, "aware", seed)),
@@ -122,10 +126,26 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
     # the classical controllers, once per sweep (they fly no policy: no seed changes them), with the
     # constants their validation search chose (regimes.CLASSICAL_CHOICES holds the values it wrote)
     plan.append(Stage("base-search", ("tune_base_controllers.py",), ROOT / "results" / "base_search_vertical.json"))
-    for r, sweeps in (("horizontal", ("horizontal", "ood")), ("vertical", ("vertical",))):
+    for r, sweeps in REGIME_SWEEPS:
         plan.append(Stage(f"classical-{r}", ("ablation.py", "--sweeps", *sweeps, "--controllers", "pd", *CLASSICAL_CONTROLLERS,
                                              "--results", str(ROOT / "results" / "classical")),
                           ROOT / "results" / "classical" / f"ablation_{sweeps[-1]}.json", needs=("base-search",)))
+    # the residual on that base, per seed the zero residual (the base alone) and both residuals on
+    # every sweep, then every seed against the base alone and PD (the classical files fly both)
+    aware, blind = RESIDUAL_KINDS
+    residual = []
+    for seed in RESIDUAL_SEEDS:
+        out = RESIDUAL_RESULTS / f"seed{seed}"
+        for r, sweeps in REGIME_SWEEPS:
+            residual.append(Stage(f"residual-{RESIDUAL_BASE}-seed{seed}-{r}", (
+                "ablation.py", "--sweeps", *sweeps, "--controllers", "pd", "aware", "trained_blind",
+                "--policy", str(kept_policy(r, aware, seed)), "--blind-policy", str(kept_policy(r, blind, seed)),
+                "--results", str(out), "--figures", str(out / "figures")), out / f"ablation_{sweeps[-1]}.json",
+                needs=tuple(_stage_name(policy_run(r, kind, seed)) for kind in RESIDUAL_KINDS)))
+    plan += residual
+    plan.append(Stage(f"residual-{RESIDUAL_BASE}-value", ("residual_value.py", "--base", RESIDUAL_BASE),
+                      ROOT / "results" / f"residual_{RESIDUAL_BASE}.json",
+                      needs=(*(stage.name for stage in residual), *(f"classical-{r}" for r in REGIMES))))
     plan += [
         Stage("perception-value", ("perception_value.py",), ROOT / "results" / "perception_value.json"),
         Stage("ship-policies", (), CHECKPOINTS / "policy_vertical_trained_blind.pt", after=ship_median_seeds),
@@ -147,7 +167,16 @@ POLICY_KINDS = {"aware": (), "trained_blind": ("--wind-input", "zero")}
 # the policy trained on the true mean wind (what a perfect estimate is worth to a policy
 # trained with it, against the trained-blind one); three seeds, horizontal, never shipped
 ORACLE_KIND, ORACLE_SEEDS = "trained_oracle", (0, 1, 2)
-TRAINING_OPTIONS = POLICY_KINDS | {ORACLE_KIND: ("--wind-input", "truth")}
+# the residual re-based on the classical controller with the best validation score in both regimes
+# (docs/results.md, "Against classical controllers"), three seeds per regime, wind-aware and
+# trained blind, the shipped recipe otherwise; never shipped
+RESIDUAL_BASE, RESIDUAL_SEEDS = "dob", (0, 1, 2)
+RESIDUAL_KINDS = {f"residual_{RESIDUAL_BASE}": ("--base-controller", RESIDUAL_BASE),
+                  f"residual_{RESIDUAL_BASE}_trained_blind": ("--base-controller", RESIDUAL_BASE, "--wind-input", "zero")}
+RESIDUAL_RESULTS = ROOT / "results" / "residual" / RESIDUAL_BASE
+TRAINING_OPTIONS = POLICY_KINDS | {ORACLE_KIND: ("--wind-input", "truth")} | RESIDUAL_KINDS
+# the sweeps each regime's policies fly
+REGIME_SWEEPS = (("horizontal", ("horizontal", "ood")), ("vertical", ("vertical",)))
 # every seed's policy is kept (about 0.6 MB each) so that each seed's ablation can be re-flown
 SEED_POLICIES = ROOT / "results" / "policies"
 SEED_RESULTS = ROOT / "results" / "seeds"

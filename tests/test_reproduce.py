@@ -91,6 +91,34 @@ def test_full_plan_flies_each_seeds_own_policies_per_regime(monkeypatch):
     assert not any("vertical-trained-oracle" in name for name in names)
 
 
+def test_full_plan_trains_and_flies_the_residual_on_the_best_classical_base(monkeypatch):
+    """Per regime and residual seed the wind-aware and trained-blind residuals train on the base
+    (the shipped recipe otherwise), each seed's ablation flies the zero residual and both on that
+    regime's sweeps, and the residual's value is measured once every seed and classical file exist."""
+    reproduce = _load_reproduce(monkeypatch)
+    plan = {stage.name: stage for stage in reproduce.stages(False, ROOT / "runs" / "quick")}
+    names = list(plan)
+    base = reproduce.RESIDUAL_BASE
+    aware, blind = reproduce.RESIDUAL_KINDS
+    value = plan[f"residual-{base}-value"]
+    assert value.args == ("residual_value.py", "--base", base)
+    for seed in reproduce.RESIDUAL_SEEDS:
+        for regime, sweeps in reproduce.REGIME_SWEEPS:
+            trained = {kind: plan[f"ppo-{regime}-{kind.replace('_', '-')}-seed{seed}"] for kind in (aware, blind)}
+            assert trained[aware].args[-4:-2] == ("--base-controller", base)
+            assert trained[blind].args[-6:-2] == ("--base-controller", base, "--wind-input", "zero")
+            flight = plan[f"residual-{base}-seed{seed}-{regime}"]
+            args = list(flight.args)
+            assert args[args.index("--sweeps") + 1:args.index("--controllers")] == list(sweeps)
+            assert args[args.index("--controllers") + 1:args.index("--policy")] == ["pd", "aware", "trained_blind"]
+            assert args[args.index("--policy") + 1] == str(reproduce.kept_policy(regime, aware, seed))
+            assert args[args.index("--blind-policy") + 1] == str(reproduce.kept_policy(regime, blind, seed))
+            assert set(flight.needs) == {stage.name for stage in trained.values()}
+            assert flight.name in value.needs and f"classical-{regime}" in value.needs
+            assert flight.output == reproduce.RESIDUAL_RESULTS / f"seed{seed}" / f"ablation_{sweeps[-1]}.json"
+    assert names.index(f"residual-{base}-value") < names.index("report")
+
+
 def test_ship_median_seeds_ships_the_middle_seed_of_each_regime_and_kind(tmp_path, monkeypatch):
     """Per regime and policy kind the seed in the middle by its kept policy's validation score is
     shipped (policy and manifest), never by a test sweep, and the wind-aware median seed's
