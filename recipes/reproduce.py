@@ -13,6 +13,9 @@ the long stages resume from their last checkpoint when interrupted, so a full re
 span several sessions. Each finished stage's wall time, commit and machine load are added to
 ``pipeline_times.json`` (``results/``); with two stages at once each one's wall time is that of a
 shared machine (its load is recorded beside it).
+``--executor ray`` runs each stage as a Ray task instead, on a local Ray instance of ``--jobs``
+CPUs or, with ``--address auto|HOST:PORT``, on a running Ray cluster (docs/scaling.md); the
+same stages, outputs, skipping and record, each stage's node included.
 ``--quick`` writes everything under ``runs/quick/`` (or ``--out DIR``) and never touches the shipped checkpoints,
 ``results/`` or ``docs/``; ``--full`` writes the shipped artifacts.
 
@@ -37,28 +40,16 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Callable
 
-from quadwind_trl.manifest import git_commit, repo_relative, write_json
+from quadwind_trl.manifest import git_commit, repo_relative
 from quadwind_trl.outputs import hold_for_command
+from quadwind_trl.pipeline import Stage, check_all_ran, is_done, is_forced, record_time, stage_needs
 from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
-
-
-@dataclass(frozen=True)
-class Stage:
-    name: str
-    args: tuple[str, ...]  # a recipe and its arguments; () for a stage that is only ``after``
-    output: Path  # the stage is done when this exists
-    after: Callable[[], None] | None = None  # run in this process once the recipe has finished
-    # the stages whose outputs this one reads; None: every stage listed before it. Every recipe
-    # runs single-threaded, so two stages with nothing between them can share two cores (--jobs)
-    needs: tuple[str, ...] | None = None
 
 
 def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage]:
@@ -158,6 +149,7 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
 
 
 REGIMES = ("horizontal", "vertical")
+EXECUTORS = ("local", "ray")  # the first is the default
 DEFAULT_JOBS = 2  # stages at once (--jobs): every recipe runs on one thread, and the target machine has 2 cores
 PPO_RECIPES = {"horizontal": "ppo_horizontal.py", "vertical": "ppo_vertical_curriculum.py"}
 SEEDS = (0, 1, 2, 3, 4)  # five per regime and kind: the shipped one is the median by validation
@@ -254,10 +246,20 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "quick", help="--quick: where everything goes (default runs/quick)")
     parser.add_argument("--jobs", type=int, default=DEFAULT_JOBS,
                         help=f"stages run at once, each a single-threaded process (default {DEFAULT_JOBS}: one per core of a "
-                             "2-core machine); a stage starts once the stages it reads have finished")
+                             "2-core machine); a stage starts once the stages it reads have finished. --executor ray "
+                             "without --address: the local Ray instance's CPUs")
+    parser.add_argument("--executor", default=EXECUTORS[0], choices=EXECUTORS,
+                        help="local: each stage a process of this machine, --jobs at a time (default); ray: each stage a "
+                             "Ray task asking for its CPUs and memory, on a local Ray instance of --jobs CPUs or on the "
+                             "cluster at --address (docs/scaling.md)")
+    parser.add_argument("--address", default=None, metavar="auto|HOST:PORT",
+                        help="--executor ray: the Ray cluster to run on (auto: the one 'ray start' joined on this machine, "
+                             "or RAY_ADDRESS; HOST:PORT: its head node); default: start a local Ray instance")
     args = parser.parse_args()
     if args.jobs < 1:
         parser.error(f"--jobs={args.jobs}: run at least 1 stage at a time")
+    if args.address is not None and args.executor != "ray":
+        parser.error(f"--address {args.address}: only with --executor ray")
 
     plan = stages(args.quick, args.out.resolve())
     names = [s.name for s in plan]
@@ -270,18 +272,29 @@ def main() -> None:
                      hint="wait for that reproduction to finish" + (", or choose another --out" if args.quick else ""))
     start = time.perf_counter()
     selected = [s for s in plan if args.only is None or s.name in args.only]
-    run_stages(selected, plan, args.force, args.jobs, times)
+    if args.executor == "ray":
+        from quadwind_trl.pipeline.ray_executor import RayUnavailable, connect, run_stages_on_ray
+
+        try:
+            print(f"stages run as Ray tasks on {connect(args.address, args.jobs)}", flush=True)
+        except RayUnavailable as err:
+            parser.error(str(err))
+        run_stages_on_ray(selected, plan, args.force, times, partial(stage_command, force=args.force), ROOT)
+    else:
+        run_stages(selected, plan, args.force, args.jobs, times)
     elapsed = time.perf_counter() - start
     print(f"this session's stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min); per stage, over sessions: {times}")
     if args.quick:
         print(toy_summary(args.out.resolve()))
 
 
-def _needs(stage: Stage, plan: list[Stage]) -> tuple[str, ...]:
-    """The stages ``stage`` waits for: its own list, or every stage before it in the plan."""
-    if stage.needs is not None:
-        return stage.needs
-    return tuple(s.name for s in plan[:plan.index(stage)])
+def stage_command(stage: Stage, force: list[str]) -> list[str]:
+    """The recipe ``stage`` runs and its arguments (without the Python that runs it); a forced
+    dataset or estimator stage overwrites its output."""
+    cmd = [str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
+    if is_forced(stage, force) and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
+        cmd.append("--overwrite")
+    return cmd
 
 
 class _Running:
@@ -316,30 +329,21 @@ def run_stages(selected: list[Stage], plan: list[Stage], force: list[str], jobs:
         record_time(times, stage.name, seconds, commit)
         finished.add(stage.name)
 
-    def forced(stage: Stage) -> bool:
-        return "all" in force or stage.name in force
-
-    def done_already(stage: Stage) -> bool:
-        return stage.output.exists() and not forced(stage) and stage.name != "report"
-
     def start_ready() -> None:
         """Skip, finish or start every stage that can go now (in plan order), until none can."""
         while not failed:
-            ready = [s for s in waiting if all(n in finished or n not in names for n in _needs(s, plan))]
-            stage = next((s for s in ready if done_already(s)), None) or (ready[0] if ready and len(running) < jobs else None)
+            ready = [s for s in waiting if all(n in finished or n not in names for n in stage_needs(s, plan))]
+            stage = next((s for s in ready if is_done(s, force)), None) or (ready[0] if ready and len(running) < jobs else None)
             if stage is None:
                 return
             waiting.remove(stage)
-            if done_already(stage):
+            if is_done(stage, force):
                 print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
                 finished.add(stage.name)
             elif not stage.args:
                 finish(stage, time.perf_counter(), git_commit())
             else:
-                cmd = [sys.executable, str(ROOT / "recipes" / stage.args[0]), *stage.args[1:]]
-                if forced(stage) and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
-                    cmd.append("--overwrite")
-                running.append(_Running(stage, cmd))
+                running.append(_Running(stage, [sys.executable, *stage_command(stage, force)]))
 
     while True:
         start_ready()
@@ -354,20 +358,7 @@ def run_stages(selected: list[Stage], plan: list[Stage], force: list[str], jobs:
             else:
                 print(f"[{job.stage.name}] failed (exit status {job.proc.returncode})", flush=True)
                 failed.append(job.stage.name)
-    if failed:
-        raise SystemExit(f"error: stage{'s' if len(failed) > 1 else ''} {', '.join(failed)} failed; "
-                         f"{len(waiting)} stage{'s' if len(waiting) != 1 else ''} did not start")
-    if waiting:  # nothing failed, yet these could never start: they need a stage that is not in the plan
-        raise RuntimeError(f"stages {[s.name for s in waiting]} wait for stages that never run")
-
-
-def record_time(path: Path, stage: str, seconds: float, commit: str | None) -> None:
-    """Add a finished stage's wall time (with the machine's load and the commit it ran at) to
-    ``path``, the per-stage record a reproduction spanning several sessions adds up."""
-    record = json.loads(path.read_text()) if path.exists() else {}
-    record[stage] = {"wall_time_s": round(seconds, 1), "finished": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
-                     "git_commit": commit, "load_average_1min": round(os.getloadavg()[0], 2)}
-    write_json(path, record)
+    check_all_ran(failed, waiting)
 
 
 def toy_summary(q: Path) -> str:

@@ -1,0 +1,186 @@
+"""The pipeline's stages as Ray tasks (``recipes/reproduce.py --executor ray [--address ...]``).
+
+Each stage whose recipe runs is one Ray task asking for its :class:`~quadwind_trl.pipeline.StageResources`
+(CPUs, GPUs, memory); it is handed to Ray once the stages it reads have finished, so Ray places it
+on any node with room. The task runs the recipe as a child process of the Ray worker, with the
+worker's Python, in the repository folder the driver names, and relays its output lines (prefixed
+with the stage's name) to the driver. Every node therefore needs the repository at the same path
+and its outputs on a file system all nodes share (the stages read each other's outputs); the
+recipes' one-writer locks (:mod:`quadwind_trl.outputs`) are ``flock`` locks on that file system.
+
+A worker that dies (the node lost, the worker killed) takes its recipe with it (the child gets
+SIGKILL when the worker goes), and Ray runs the task again, up to ``max_retries`` times; so does a
+recipe killed by a signal (the node's memory monitor, an operator). The retry starts the recipe
+over with the same arguments: the long stages pass ``--resume`` and go on from their last
+checkpoint, the others start again and replace their partial output. A recipe that exits with an
+error is not retried: it would fail the same way.
+
+This module imports Ray only when :func:`connect` or :func:`run_stages_on_ray` is called; the local
+executor never imports it.
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Sequence
+
+from ..manifest import git_commit
+from .stages import Stage, check_all_ran, is_done, record_time, stage_needs
+
+#: times Ray reruns a stage whose worker died or whose recipe was killed
+DEFAULT_MAX_RETRIES = 3
+#: seconds to wait for a TCP answer from ``--address HOST:PORT`` before calling it unreachable
+#: (Ray's own connection attempt waits minutes before it gives up)
+CONNECT_TIMEOUT_S = 5.0
+#: seconds between the driver's checks for finished stages
+POLL_S = 1.0
+
+
+class RayUnavailable(RuntimeError):
+    """Ray is not installed, or the cluster named by ``--address`` cannot be reached."""
+
+
+class StageKilled(RuntimeError):
+    """A stage's recipe was killed by a signal; Ray retries the task."""
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise RayUnavailable("--executor ray needs Ray, which is not installed: pip install 'quadwind_trl[ray]', "
+                             "or leave out --executor ray and --address to run the stages as local processes") from None
+    return ray
+
+
+def parse_address(address: str) -> tuple[str, int]:
+    """``HOST:PORT`` of a Ray head node (the GCS port, 6379 unless ``ray start --port`` chose another)."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise RayUnavailable(f"--address {address!r}: expected 'auto' or HOST:PORT of the Ray head node "
+                             "(PORT 1-65535, e.g. 10.0.0.1:6379)")
+    return host, int(port)
+
+
+def connect(address: str | None, local_cpus: int) -> str:
+    """Join the Ray cluster at ``address`` ("auto": the one ``ray start`` left on this machine, or
+    ``RAY_ADDRESS``; ``HOST:PORT``: its head node), or with None start a local Ray instance of
+    ``local_cpus`` CPUs for this command. Returns a line saying which, with the cluster's CPUs."""
+    ray = _import_ray()
+    if address is None:
+        ray.init(num_cpus=local_cpus, include_dashboard=False)
+        where = "a local Ray instance"
+    else:
+        if address != "auto":
+            host, port = parse_address(address)
+            try:
+                socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
+            except OSError as err:
+                raise RayUnavailable(f"--address {address}: no Ray head node answers there ({err}); start one with "
+                                     "'ray start --head' on that machine, or check the host and port") from None
+        try:
+            ray.init(address=address)
+        except ConnectionError as err:
+            raise RayUnavailable(f"--address {address}: {err}") from None
+        where = f"the Ray cluster at {address}"
+    nodes = [n for n in ray.nodes() if n.get("Alive")]
+    return f"{where}: {len(nodes)} node{'s' if len(nodes) != 1 else ''}, {ray.cluster_resources().get('CPU', 0):g} CPUs"
+
+
+def _die_with_parent() -> None:
+    """In the recipe's process, before it starts: receive SIGKILL when the Ray worker that started
+    it dies, so a retry never finds the previous attempt still writing (Linux; elsewhere a
+    killed worker's recipe runs on and the retry meets its output lock)."""
+    if sys.platform.startswith("linux"):
+        PR_SET_PDEATHSIG = 1
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+
+
+def run_stage(name: str, cmd: Sequence[str], cwd: str) -> dict:
+    """One stage in a Ray worker: run the recipe ``cmd`` (a script and its arguments) with this
+    worker's Python in ``cwd``, relay its output, and say how it ended and where it ran."""
+    import ray
+
+    t0 = time.perf_counter()
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": os.pathsep.join(filter(None, [cwd, os.environ.get("PYTHONPATH")]))}
+    proc = subprocess.Popen([sys.executable, *cmd], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            bufsize=1, env=env, preexec_fn=_die_with_parent)
+    for line in proc.stdout:
+        print(f"[{name}] {line}", end="", flush=True)
+    _, status, usage = os.wait4(proc.pid, 0)  # this child's own peak memory (a worker runs many stages)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    if proc.returncode < 0:
+        raise StageKilled(f"stage {name}: its recipe was killed by signal {-proc.returncode}")
+    return {"returncode": proc.returncode, "seconds": time.perf_counter() - t0, "node": socket.gethostname(),
+            "ray_node": ray.get_runtime_context().get_node_id()[:12], "load": os.getloadavg()[0],
+            "peak_rss_mib": round(usage.ru_maxrss / 1024 if sys.platform.startswith("linux") else usage.ru_maxrss / 2**20, 1)}
+
+
+def run_stages_on_ray(selected: Sequence[Stage], plan: Sequence[Stage], force: Sequence[str], times: Path,
+                      command: Callable[[Stage], list[str]], cwd: Path, *, max_retries: int = DEFAULT_MAX_RETRIES) -> None:
+    """Run ``selected`` (in ``plan``'s order) as Ray tasks on the cluster :func:`connect` joined,
+    each handed to Ray once the stages it needs have finished or are not selected; a stage whose
+    output exists is skipped unless forced (``force``), and ``Stage.after`` runs here. ``command``
+    gives a stage's recipe and arguments, run in ``cwd``. Each finished stage's wall time, node,
+    load and peak memory go to ``times``. On a failure nothing more is handed to Ray, the stages it
+    holds finish, and the command exits 1 (as the local executor does)."""
+    if max_retries < 0:
+        raise ValueError(f"max_retries={max_retries}: allowed range: >= 0")
+    ray = _import_ray()
+    task = ray.remote(run_stage)
+    names = {s.name for s in selected}
+    waiting, running, finished, failed = list(selected), {}, set(), []
+
+    def finish(stage: Stage, seconds: float, commit: str | None, **where) -> None:
+        if stage.after is not None:
+            stage.after()
+        print(f"[{stage.name}] finished in {seconds:.0f} s", flush=True)
+        record_time(times, stage.name, seconds, commit, **where)
+        finished.add(stage.name)
+
+    def hand_over_ready() -> None:
+        """Skip, finish or hand to Ray every stage that can go now (in plan order), until none can."""
+        while not failed:
+            stage = next((s for s in waiting if all(n in finished or n not in names for n in stage_needs(s, plan))), None)
+            if stage is None:
+                return
+            waiting.remove(stage)
+            if is_done(stage, force):
+                print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
+                finished.add(stage.name)
+            elif not stage.args:
+                finish(stage, 0.0, git_commit())
+            else:
+                cmd = command(stage)
+                print(f"[{stage.name}] {' '.join(cmd)}", flush=True)
+                r = stage.resources
+                ref = task.options(name=stage.name, num_cpus=r.cpus, num_gpus=r.gpus, memory=int(r.memory_gib * 2**30),
+                                   max_retries=max_retries, retry_exceptions=[StageKilled]).remote(stage.name, cmd, str(cwd))
+                running[ref] = (stage, git_commit())  # the commit before it writes shipped files
+
+    while True:
+        hand_over_ready()
+        if not running:
+            break
+        done, _ = ray.wait(list(running), num_returns=1, timeout=POLL_S)
+        for ref in done:
+            stage, commit = running.pop(ref)
+            try:
+                result = ray.get(ref)
+            except ray.exceptions.RayError as err:  # e.g. its worker died more than max_retries times
+                print(f"[{stage.name}] failed: {err}", flush=True)
+                failed.append(stage.name)
+                continue
+            if result["returncode"] != 0:
+                print(f"[{stage.name}] failed (exit status {result['returncode']})", flush=True)
+                failed.append(stage.name)
+                continue
+            finish(stage, result["seconds"], commit, node=result["node"], load=result["load"], ray_node=result["ray_node"],
+                   peak_rss_mib=result["peak_rss_mib"])
+    check_all_ran(failed, waiting)
