@@ -58,14 +58,16 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
         data = {r: q / "data" / f"flights_{r}" for r in ("horizontal", "vertical")}
         est = {r: q / f"estimator_{r}.pt" for r in ("horizontal", "vertical")}
         pol = {r: q / f"ppo_{r}" for r in ("horizontal", "vertical")}
+        # --resume as at full scale: a stage restarted (a Ray retry) goes on from its last checkpoint
         out = [
             *(Stage(f"data-{r}", ("generate_flights.py", "--regime", r, "--quick", "--cases", "4", "--out", str(data[r]),
-                                          "--threads", "1", "--no-progress"), data[r], needs=())
+                                          "--threads", "1", "--resume", "--no-progress"), data[r], needs=())
               for r in data),
             *(Stage(f"estimator-{r}", ("train_estimator.py", "--regime", r, "--data", str(data[r]), "--quick", "--out", str(est[r]),
-                                       "--log-dir", str(q / "runs"), "--threads", "1", "--no-progress"), est[r],
+                                       "--log-dir", str(q / "runs"), "--threads", "1", "--resume", "--no-progress"), est[r],
                     needs=(f"data-{r}",)) for r in data),
-            *(Stage(f"ppo-{r}", (PPO_RECIPES[r], "--quick", "--estimator", str(est[r]), "--out", str(pol[r]), "--no-progress"),
+            *(Stage(f"ppo-{r}", (PPO_RECIPES[r], "--quick", "--estimator", str(est[r]), "--out", str(pol[r]), "--resume",
+                                 "--no-progress"),
                     pol[r] / "policy.pt", needs=(f"estimator-{r}",)) for r in data),
             # no separate PD-baseline stage (the ablation flies PD on the same episodes), no oracle
             # controller and no out-of-distribution sweep: a toy run shows the pipeline, not results

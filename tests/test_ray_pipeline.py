@@ -121,3 +121,68 @@ def test_a_missing_ray_names_the_options(monkeypatch):
     with pytest.raises(RayUnavailable, match=r"--executor ray needs Ray, which is not installed: pip install "
                                              r"'quadwind_trl\[ray\]', or leave out --executor ray and --address"):
         connect(None, 2)
+
+
+def _load_reproduce(monkeypatch):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("reproduce", ROOT / "recipes" / "reproduce.py")
+    reproduce = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, "reproduce", reproduce)
+    spec.loader.exec_module(reproduce)
+    return reproduce
+
+
+@pytest.mark.slow
+def test_the_toy_pipelines_first_stages_make_the_same_bits_as_the_local_executor(local_ray, tmp_path, monkeypatch):
+    """The toy pipeline's horizontal dataset and estimator, once as Ray tasks and once as local
+    processes: every dataset array and every estimator tensor agree to the bit (the whole toy
+    pipeline's comparison: docs/scaling.md)."""
+    import torch
+
+    reproduce = _load_reproduce(monkeypatch)
+    only = ("data-horizontal", "estimator-horizontal")
+    runs = {}
+    for executor in ("local", "ray"):
+        out = tmp_path / executor
+        plan = reproduce.stages(True, out)
+        selected = [s for s in plan if s.name in only]
+        times = out / "pipeline_times.json"
+        out.mkdir()
+        if executor == "ray":
+            run_stages_on_ray(selected, plan, [], times, partial(reproduce.stage_command, force=[]), ROOT)
+        else:
+            reproduce.run_stages(selected, plan, [], 2, times)
+        runs[executor] = out
+    data = sorted(p.relative_to(runs["local"]) for p in (runs["local"] / "data").rglob("*.memmap"))
+    assert len(data) > 5
+    for path in data:
+        assert (runs["local"] / path).read_bytes() == (runs["ray"] / path).read_bytes(), path
+    local, on_ray = (_tensors(torch.load(runs[e] / "estimator_horizontal.pt", weights_only=False)) for e in ("local", "ray"))
+    assert len(local) > 5 and local.keys() == on_ray.keys()
+    assert all(torch.equal(local[k], on_ray[k]) for k in local), [k for k in local if not torch.equal(local[k], on_ray[k])]
+
+
+def _tensors(obj, prefix: str = "") -> dict:
+    """Every tensor in a checkpoint's nested dicts and lists, by its path."""
+    import torch
+
+    if isinstance(obj, torch.Tensor):
+        return {prefix: obj}
+    items = obj.items() if isinstance(obj, dict) else enumerate(obj) if isinstance(obj, (list, tuple)) else ()
+    return {k: v for key, value in items for k, v in _tensors(value, f"{prefix}/{key}").items()}
+
+
+def test_a_stage_no_node_can_hold_is_refused_before_anything_runs():
+    from quadwind_trl.pipeline import StageResources
+    from quadwind_trl.pipeline.ray_executor import check_fits
+
+    nodes = [{"CPU": 2.0, "memory": 8 * 2**30}, {"CPU": 16.0, "GPU": 1.0, "memory": 4 * 2**30}]
+    fits = [Stage("a", ("x.py",), Path("a"), resources=StageResources(cpus=16, gpus=1, memory_gib=4)),
+            Stage("b", ("x.py",), Path("b"), resources=StageResources(cpus=2, memory_gib=8))]
+    check_fits(fits, nodes)
+    big = Stage("big", ("x.py",), Path("big"), resources=StageResources(cpus=16, memory_gib=8))
+    with pytest.raises(ValueError, match=r"stage big asks for .* the largest: 16 CPUs, 1 GPUs, 8.0 GiB"):
+        check_fits([*fits, big], nodes)
+    with pytest.raises(ValueError, match=r"StageResources.memory_gib=-1: allowed range: a finite number >= 0"):
+        StageResources(memory_gib=-1)

@@ -122,6 +122,21 @@ def run_stage(name: str, cmd: Sequence[str], cwd: str) -> dict:
             "peak_rss_mib": round(usage.ru_maxrss / 1024 if sys.platform.startswith("linux") else usage.ru_maxrss / 2**20, 1)}
 
 
+def check_fits(stages: Sequence[Stage], nodes: Sequence[dict]) -> None:
+    """Refuse a stage that no node of the cluster could ever run (Ray would hold it forever):
+    ``nodes`` are the nodes' total resources as Ray names them (``CPU``, ``GPU``, ``memory`` in bytes)."""
+    for stage in stages:
+        if not stage.args:
+            continue
+        r = stage.resources
+        asked = {"CPU": r.cpus, "GPU": r.gpus, "memory": r.memory_gib * 2**30}
+        if not any(all(node.get(key, 0) >= value for key, value in asked.items() if value) for node in nodes):
+            largest = {key: max((node.get(key, 0) for node in nodes), default=0) for key in asked}
+            raise ValueError(f"stage {stage.name} asks for {r} and no node of the cluster has that much (the largest: "
+                             f"{largest['CPU']:g} CPUs, {largest['GPU']:g} GPUs, {largest['memory'] / 2**30:.1f} GiB of "
+                             "memory for tasks); add a node, or lower the stage's StageResources")
+
+
 def run_stages_on_ray(selected: Sequence[Stage], plan: Sequence[Stage], force: Sequence[str], times: Path,
                       command: Callable[[Stage], list[str]], cwd: Path, *, max_retries: int = DEFAULT_MAX_RETRIES) -> None:
     """Run ``selected`` (in ``plan``'s order) as Ray tasks on the cluster :func:`connect` joined,
@@ -133,6 +148,7 @@ def run_stages_on_ray(selected: Sequence[Stage], plan: Sequence[Stage], force: S
     if max_retries < 0:
         raise ValueError(f"max_retries={max_retries}: allowed range: >= 0")
     ray = _import_ray()
+    check_fits(selected, [n["Resources"] for n in ray.nodes() if n.get("Alive")])
     task = ray.remote(run_stage)
     names = {s.name for s in selected}
     waiting, running, finished, failed = list(selected), {}, set(), []
