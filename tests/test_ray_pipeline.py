@@ -44,7 +44,7 @@ if checkpoint and not resumed:
 time.sleep(seconds)
 if name.startswith("fail"):
     sys.exit(3)
-open(out, "w").write(json.dumps({"start": t0, "end": time.time(), "resumed": resumed}))
+open(out, "w").write(json.dumps({"start": t0, "end": time.time(), "resumed": resumed, "omp": os.environ.get("OMP_NUM_THREADS")}))
 """
 
 
@@ -71,6 +71,8 @@ def test_stages_run_as_ray_tasks_once_what_they_read_is_done(local_ray, tmp_path
     a, b, c, d = (_span(tmp_path, n) for n in "abcd")
     assert a[0] < b[1] and b[0] < a[1]  # two CPUs: a and b at once
     assert c[0] >= a[1] and d[0] >= max(a[1], b[1], c[1])
+    # the recipe sees this process's kernel settings, not the OMP_NUM_THREADS Ray gives its workers
+    assert json.loads((tmp_path / "a.json").read_text())["omp"] == os.environ.get("OMP_NUM_THREADS")
     record = json.loads(times.read_text())
     assert set(record) == set("abcd")
     assert all(r["ray_node"] == ray.get_runtime_context().get_node_id()[:12] and r["node"] and r["peak_rss_mib"] > 0
@@ -161,6 +163,9 @@ def test_the_toy_pipelines_first_stages_make_the_same_bits_as_the_local_executor
     local, on_ray = (_tensors(torch.load(runs[e] / "estimator_horizontal.pt", weights_only=False)) for e in ("local", "ray"))
     assert len(local) > 5 and local.keys() == on_ray.keys()
     assert all(torch.equal(local[k], on_ray[k]) for k in local), [k for k in local if not torch.equal(local[k], on_ray[k])]
+    # and its manifest names the same platform, so a re-flight of a Ray run is checked bit for bit
+    platform = [json.loads((runs[e] / "estimator_horizontal.json").read_text())["platform"] for e in ("local", "ray")]
+    assert platform[0] == platform[1]
 
 
 def _tensors(obj, prefix: str = "") -> dict:

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from ..manifest import git_commit
+from ..manifest import KERNEL_ENV, git_commit
 from .stages import Stage, check_all_ran, is_done, record_time, stage_needs
 
 #: times Ray reruns a stage whose worker died or whose recipe was killed
@@ -102,13 +102,23 @@ def _die_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
-def run_stage(name: str, cmd: Sequence[str], cwd: str) -> dict:
+def run_stage(name: str, cmd: Sequence[str], cwd: str, kernel_env: dict[str, str | None]) -> dict:
     """One stage in a Ray worker: run the recipe ``cmd`` (a script and its arguments) with this
-    worker's Python in ``cwd``, relay its output, and say how it ended and where it ran."""
+    worker's Python in ``cwd``, relay its output, and say how it ended and where it ran.
+
+    ``kernel_env`` holds the driver's values of the variables that choose the CPU kernels
+    (:data:`~quadwind_trl.manifest.KERNEL_ENV`; None: unset) and replaces the worker's: Ray sets
+    ``OMP_NUM_THREADS`` to a task's CPUs, and a manifest that recorded it would name another
+    platform than the local executor's run, whose re-flights are then no longer checked bit for bit."""
     import ray
 
     t0 = time.perf_counter()
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": os.pathsep.join(filter(None, [cwd, os.environ.get("PYTHONPATH")]))}
+    for key, value in kernel_env.items():
+        if value is None:
+            env.pop(key, None)
+        else:
+            env[key] = value
     proc = subprocess.Popen([sys.executable, *cmd], cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             bufsize=1, env=env, preexec_fn=_die_with_parent)
     for line in proc.stdout:
@@ -150,6 +160,7 @@ def run_stages_on_ray(selected: Sequence[Stage], plan: Sequence[Stage], force: S
     ray = _import_ray()
     check_fits(selected, [n["Resources"] for n in ray.nodes() if n.get("Alive")])
     task = ray.remote(run_stage)
+    kernel_env = {key: os.environ.get(key) for key in KERNEL_ENV}
     names = {s.name for s in selected}
     waiting, running, finished, failed = list(selected), {}, set(), []
 
@@ -176,8 +187,9 @@ def run_stages_on_ray(selected: Sequence[Stage], plan: Sequence[Stage], force: S
                 cmd = command(stage)
                 print(f"[{stage.name}] {' '.join(cmd)}", flush=True)
                 r = stage.resources
-                ref = task.options(name=stage.name, num_cpus=r.cpus, num_gpus=r.gpus, memory=int(r.memory_gib * 2**30),
-                                   max_retries=max_retries, retry_exceptions=[StageKilled]).remote(stage.name, cmd, str(cwd))
+                options = {"name": stage.name, "num_cpus": r.cpus, "num_gpus": r.gpus, "memory": int(r.memory_gib * 2**30),
+                           "max_retries": max_retries, "retry_exceptions": [StageKilled]}
+                ref = task.options(**options).remote(stage.name, cmd, str(cwd), kernel_env)
                 running[ref] = (stage, git_commit())  # the commit before it writes shipped files
 
     while True:
