@@ -34,18 +34,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import subprocess
-import sys
-import threading
 import time
 from functools import partial
 from pathlib import Path
 
-from quadwind_trl.manifest import git_commit, repo_relative
+from quadwind_trl.manifest import repo_relative
 from quadwind_trl.outputs import hold_for_command
-from quadwind_trl.pipeline import Stage, check_all_ran, is_done, is_forced, record_time, stage_needs
+from quadwind_trl.pipeline import Stage, is_forced
+from quadwind_trl.pipeline.run import add_executor_arguments, check_executor_arguments, run_plan
 from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -151,8 +148,6 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
 
 
 REGIMES = ("horizontal", "vertical")
-EXECUTORS = ("local", "ray")  # the first is the default
-DEFAULT_JOBS = 2  # stages at once (--jobs): every recipe runs on one thread, and the target machine has 2 cores
 PPO_RECIPES = {"horizontal": "ppo_horizontal.py", "vertical": "ppo_vertical_curriculum.py"}
 SEEDS = (0, 1, 2, 3, 4)  # five per regime and kind: the shipped one is the median by validation
 # the policies trained per regime and seed, with their recipe options: the paper's wind-aware
@@ -246,22 +241,9 @@ def main() -> None:
     parser.add_argument("--force", nargs="*", default=[], help="stages to rerun even if their output exists ('all' for every stage)")
     parser.add_argument("--only", nargs="*", default=None, help="run only these stages")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "quick", help="--quick: where everything goes (default runs/quick)")
-    parser.add_argument("--jobs", type=int, default=DEFAULT_JOBS,
-                        help=f"stages run at once, each a single-threaded process (default {DEFAULT_JOBS}: one per core of a "
-                             "2-core machine); a stage starts once the stages it reads have finished. --executor ray "
-                             "without --address: the local Ray instance's CPUs")
-    parser.add_argument("--executor", default=EXECUTORS[0], choices=EXECUTORS,
-                        help="local: each stage a process of this machine, --jobs at a time (default); ray: each stage a "
-                             "Ray task asking for its CPUs and memory, on a local Ray instance of --jobs CPUs or on the "
-                             "cluster at --address (docs/scaling.md)")
-    parser.add_argument("--address", default=None, metavar="auto|HOST:PORT",
-                        help="--executor ray: the Ray cluster to run on (auto: the one 'ray start' joined on this machine, "
-                             "or RAY_ADDRESS; HOST:PORT: its head node); default: start a local Ray instance")
+    add_executor_arguments(parser)
     args = parser.parse_args()
-    if args.jobs < 1:
-        parser.error(f"--jobs={args.jobs}: run at least 1 stage at a time")
-    if args.address is not None and args.executor != "ray":
-        parser.error(f"--address {args.address}: only with --executor ray")
+    check_executor_arguments(parser, args)
 
     plan = stages(args.quick, args.out.resolve())
     names = [s.name for s in plan]
@@ -274,16 +256,7 @@ def main() -> None:
                      hint="wait for that reproduction to finish" + (", or choose another --out" if args.quick else ""))
     start = time.perf_counter()
     selected = [s for s in plan if args.only is None or s.name in args.only]
-    if args.executor == "ray":
-        from quadwind_trl.pipeline.ray_executor import RayUnavailable, connect, run_stages_on_ray
-
-        try:
-            print(f"stages run as Ray tasks on {connect(args.address, args.jobs)}", flush=True)
-        except RayUnavailable as err:
-            parser.error(str(err))
-        run_stages_on_ray(selected, plan, args.force, times, partial(stage_command, force=args.force), ROOT)
-    else:
-        run_stages(selected, plan, args.force, args.jobs, times)
+    run_plan(parser, args, selected, plan, times, partial(stage_command, force=args.force), ROOT)
     elapsed = time.perf_counter() - start
     print(f"this session's stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min); per stage, over sessions: {times}")
     if args.quick:
@@ -297,70 +270,6 @@ def stage_command(stage: Stage, force: list[str]) -> list[str]:
     if is_forced(stage, force) and "--overwrite" not in cmd and stage.args[0] in ("generate_flights.py", "train_estimator.py"):
         cmd.append("--overwrite")
     return cmd
-
-
-class _Running:
-    """One stage's recipe, running as its own process; its output lines, prefixed with the
-    stage's name, reach this process's stdout whole (stages that run at once interleave by line)."""
-
-    def __init__(self, stage: Stage, cmd: list[str]):
-        self.stage, self.t0, self.commit = stage, time.perf_counter(), git_commit()  # before it writes shipped files
-        print(f"[{stage.name}] {' '.join(cmd[1:])}", flush=True)
-        self.proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
-                                     env={**os.environ, "PYTHONUNBUFFERED": "1"})  # lines as they come, not at exit
-        self.relay = threading.Thread(target=self._relay, daemon=True)
-        self.relay.start()
-
-    def _relay(self) -> None:
-        for line in self.proc.stdout:
-            print(f"[{self.stage.name}] {line}", end="", flush=True)
-
-
-def run_stages(selected: list[Stage], plan: list[Stage], force: list[str], jobs: int, times: Path) -> None:
-    """Run ``selected`` (in ``plan``'s order), up to ``jobs`` at once, each once the stages it
-    needs have finished or are not selected; a stage whose output exists is skipped unless forced.
-    On a failure no new stage starts, the running ones finish, and the command exits 1."""
-    names = {s.name for s in selected}
-    waiting, running, finished, failed = list(selected), [], set(), []
-
-    def finish(stage: Stage, t0: float, commit: str | None) -> None:
-        if stage.after is not None:
-            stage.after()
-        seconds = time.perf_counter() - t0
-        print(f"[{stage.name}] finished in {seconds:.0f} s", flush=True)
-        record_time(times, stage.name, seconds, commit)
-        finished.add(stage.name)
-
-    def start_ready() -> None:
-        """Skip, finish or start every stage that can go now (in plan order), until none can."""
-        while not failed:
-            ready = [s for s in waiting if all(n in finished or n not in names for n in stage_needs(s, plan))]
-            stage = next((s for s in ready if is_done(s, force)), None) or (ready[0] if ready and len(running) < jobs else None)
-            if stage is None:
-                return
-            waiting.remove(stage)
-            if is_done(stage, force):
-                print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
-                finished.add(stage.name)
-            elif not stage.args:
-                finish(stage, time.perf_counter(), git_commit())
-            else:
-                running.append(_Running(stage, [sys.executable, *stage_command(stage, force)]))
-
-    while True:
-        start_ready()
-        if not running:
-            break
-        time.sleep(0.2)
-        for job in [j for j in running if j.proc.poll() is not None]:
-            running.remove(job)
-            job.relay.join()
-            if job.proc.returncode == 0:
-                finish(job.stage, job.t0, job.commit)
-            else:
-                print(f"[{job.stage.name}] failed (exit status {job.proc.returncode})", flush=True)
-                failed.append(job.stage.name)
-    check_all_ran(failed, waiting)
 
 
 def toy_summary(q: Path) -> str:

@@ -17,6 +17,7 @@ import pytest
 ray = pytest.importorskip("ray")
 
 from quadwind_trl.pipeline import Stage  # noqa: E402
+from quadwind_trl.pipeline.local import run_stages_locally  # noqa: E402
 from quadwind_trl.pipeline.ray_executor import RayUnavailable, connect, run_stages_on_ray  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -154,7 +155,7 @@ def test_the_toy_pipelines_first_stages_make_the_same_bits_as_the_local_executor
         if executor == "ray":
             run_stages_on_ray(selected, plan, [], times, partial(reproduce.stage_command, force=[]), ROOT)
         else:
-            reproduce.run_stages(selected, plan, [], 2, times)
+            run_stages_locally(selected, plan, [], 2, times, partial(reproduce.stage_command, force=[]), ROOT)
         runs[executor] = out
     data = sorted(p.relative_to(runs["local"]) for p in (runs["local"] / "data").rglob("*.memmap"))
     assert len(data) > 5
@@ -187,7 +188,7 @@ def test_a_stage_no_node_can_hold_is_refused_before_anything_runs():
             Stage("b", ("x.py",), Path("b"), resources=StageResources(cpus=2, memory_gib=8))]
     check_fits(fits, nodes)
     big = Stage("big", ("x.py",), Path("big"), resources=StageResources(cpus=16, memory_gib=8))
-    with pytest.raises(ValueError, match=r"stage big asks for .* the largest: 16 CPUs, 1 GPUs, 8.0 GiB"):
+    with pytest.raises(ValueError, match=r"stage big asks for .*\(the largest: 16 CPUs, 1 GPUs, 8.0 GiB"):
         check_fits([*fits, big], nodes)
     with pytest.raises(ValueError, match=r"StageResources.memory_gib=-1: allowed range: a finite number >= 0"):
         StageResources(memory_gib=-1)

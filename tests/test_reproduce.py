@@ -7,6 +7,7 @@ import math
 import os
 import subprocess
 import sys
+from functools import partial
 from pathlib import Path
 
 import pytest
@@ -193,6 +194,13 @@ def _stamp_stages(reproduce, folder: Path, spec: dict[str, tuple[float, tuple[st
                             needs=needs) for name, (seconds, needs) in spec.items()]
 
 
+def _run_locally(reproduce, selected, plan, force, jobs, times) -> None:
+    """The pipeline's local executor on ``reproduce``'s stages, as its ``main`` runs it."""
+    from quadwind_trl.pipeline.local import run_stages_locally
+
+    run_stages_locally(selected, plan, force, jobs, times, partial(reproduce.stage_command, force=force), reproduce.ROOT)
+
+
 def _span(folder: Path, name: str) -> tuple[float, float]:
     d = json.loads((folder / f"{name}.json").read_text())
     return d["start"], d["end"]
@@ -208,7 +216,7 @@ def test_stages_run_as_soon_as_what_they_read_is_done(tmp_path, monkeypatch, cap
     monkeypatch.setattr(reproduce, "ROOT", tmp_path)
     plan = _stamp_stages(reproduce, tmp_path, {"a": (1.0, ()), "b": (1.0, ()), "c": (0.2, ("a",)), "d": (0.1, None)})
     times = tmp_path / "pipeline_times.json"
-    reproduce.run_stages(plan, plan, [], jobs, times)
+    _run_locally(reproduce, plan, plan, [], jobs, times)
     a, b, c, d = (_span(tmp_path, n) for n in "abcd")
     overlap = a[0] < b[1] and b[0] < a[1]
     assert overlap == (jobs == 2)
@@ -217,13 +225,13 @@ def test_stages_run_as_soon_as_what_they_read_is_done(tmp_path, monkeypatch, cap
     assert all(f"[{n}] {n} starts" in out for n in "abcd")
     assert set(json.loads(times.read_text())) == set("abcd")
     # done stages are skipped, and a stage whose needs are not selected runs
-    reproduce.run_stages(plan[2:3], plan, [], jobs, times)
+    _run_locally(reproduce, plan[2:3], plan, [], jobs, times)
     assert "[c] done already" in capsys.readouterr().out
     # a rerun skips what is done, runs what is forced, and what runs in this process (``after``
     # only) follows what it needs
     ran = []
     shipped = reproduce.Stage("ship", (), tmp_path / "shipped", after=lambda: ran.append(_span(tmp_path, "d")))
-    reproduce.run_stages([*plan, shipped], [*plan, shipped], ["d"], jobs, times)
+    _run_locally(reproduce, [*plan, shipped], [*plan, shipped], ["d"], jobs, times)
     out = capsys.readouterr().out
     assert all(f"[{n}] done already" in out for n in "abc") and "[d] d starts" in out
     assert ran == [_span(tmp_path, "d")] and _span(tmp_path, "d")[0] > d[1]
@@ -236,7 +244,7 @@ def test_a_failed_stage_starts_nothing_more_and_the_command_fails(tmp_path, monk
     monkeypatch.setattr(reproduce, "ROOT", tmp_path)
     plan = _stamp_stages(reproduce, tmp_path, {"fail": (0.1, ()), "slow": (1.0, ()), "after": (0.1, ("fail",)), "later": (0.1, ())})
     with pytest.raises(SystemExit, match="stage fail failed; 2 stages did not start"):
-        reproduce.run_stages(plan, plan, [], 2, tmp_path / "pipeline_times.json")
+        _run_locally(reproduce, plan, plan, [], 2, tmp_path / "pipeline_times.json")
     assert (tmp_path / "slow.json").exists()  # the running one finished
     assert not (tmp_path / "after.json").exists() and not (tmp_path / "later.json").exists()
     assert "[fail] failed (exit status 3)" in capsys.readouterr().out
