@@ -74,7 +74,7 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
                     q / "results" / f"ablation_{r}.json", needs=(f"ppo-{r}",)) for r in data),
             Stage("report", ("report.py", "--toy", "--results", str(q / "results"), "--sections", str(q / "sections"),
                              "--out", str(q / "results.md"), "--runs", str(q)),
-                  q / "results.md"),
+                  q / "results.md", rerun=True),
         ]
         return out
     data = {r: ROOT / "data" / f"flights_{r}" for r in REGIMES}
@@ -142,7 +142,7 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
         Stage("pd-baseline", ("pd_baseline.py",), ROOT / "results" / "pd_baseline.json"),
         *(Stage(f"error-budget-{s}", ("error_budget.py", "--sweep", s), ROOT / "results" / f"error_budget_{s}.json")
           for s in ("horizontal", "vertical")),
-        Stage("report", ("report.py",), ROOT / "docs" / "results.md"),
+        Stage("report", ("report.py",), ROOT / "docs" / "results.md", rerun=True),
     ]
     return plan
 

@@ -47,6 +47,7 @@ class Stage:
     # runs single-threaded, so two stages with nothing between them can share two cores
     needs: tuple[str, ...] | None = None
     resources: StageResources = field(default_factory=StageResources)
+    rerun: bool = False  # run even when its output exists: a summary of what the other stages left
 
 
 def stage_needs(stage: Stage, plan: Sequence[Stage]) -> tuple[str, ...]:
@@ -61,9 +62,8 @@ def is_forced(stage: Stage, force: Sequence[str]) -> bool:
 
 
 def is_done(stage: Stage, force: Sequence[str]) -> bool:
-    """Skip ``stage``: its output exists and it is not forced (the report always reruns: it
-    gathers whatever the other stages left)."""
-    return stage.output.exists() and not is_forced(stage, force) and stage.name != "report"
+    """Skip ``stage``: its output exists, and it is neither forced nor a stage that always reruns."""
+    return stage.output.exists() and not is_forced(stage, force) and not stage.rerun
 
 
 def check_all_ran(failed: Sequence[str], waiting: Sequence[Stage]) -> None:
