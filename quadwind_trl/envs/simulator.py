@@ -48,7 +48,7 @@ from .atmosphere import Atmosphere
 from .controller import BaseController, ControlInputs, make_base_controller
 from .monitor import MonitorParams, monitor_gate
 from .navigation import NavigationParams, init_navigation, update_navigation
-from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
+from .rotations import body_z_vertical, euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
 from .tensordicts import unchecked
@@ -209,7 +209,7 @@ class QuadSimulator:
         or the measured roll and pitch (Z-Y-X angles: the body z axis's vertical component is
         cos(roll) cos(pitch))."""
         if self.cfg.controller.feedback == "truth":
-            return quat_to_rotmat(state["body", "quat"])[..., 2, 2:]
+            return body_z_vertical(state["body", "quat"])
         attitude = state["sensors", MEAS_KEY, "attitude"]
         return torch.cos(attitude[..., :1]) * torch.cos(attitude[..., 1:2])
 
