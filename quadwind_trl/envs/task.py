@@ -21,6 +21,7 @@ from torch import Tensor
 
 from ..config import EnvConfig
 from .rotations import body_z_vertical, norm
+from .tensordicts import entry
 
 
 class Task(Protocol):
