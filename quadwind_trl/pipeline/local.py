@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from ..manifest import git_commit
-from .stages import Stage, check_all_ran, is_done, record_time, stage_needs
+from .stages import Stage, check_all_ran, is_done, record_time, settle, stage_needs
 
 
 class _Running:
@@ -57,12 +57,7 @@ def run_stages_locally(selected: Sequence[Stage], plan: Sequence[Stage], force: 
             if stage is None:
                 return
             waiting.remove(stage)
-            if is_done(stage, force):
-                print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
-                finished.add(stage.name)
-            elif not stage.args:
-                finish(stage, time.perf_counter(), git_commit())
-            else:
+            if not settle(stage, force, finished, lambda s: finish(s, time.perf_counter(), git_commit())):
                 running.append(_Running(stage, [sys.executable, *command(stage)], cwd))
 
     while True:

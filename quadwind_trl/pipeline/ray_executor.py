@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from ..manifest import KERNEL_ENV, git_commit
-from .stages import Stage, check_all_ran, is_done, record_time, stage_needs
+from .stages import Stage, check_all_ran, record_time, settle, stage_needs
 
 #: times Ray reruns a stage whose worker died or whose recipe was killed
 DEFAULT_MAX_RETRIES = 3
@@ -178,12 +178,7 @@ def run_stages_on_ray(selected: Sequence[Stage], plan: Sequence[Stage], force: S
             if stage is None:
                 return
             waiting.remove(stage)
-            if is_done(stage, force):
-                print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
-                finished.add(stage.name)
-            elif not stage.args:
-                finish(stage, 0.0, git_commit())
-            else:
+            if not settle(stage, force, finished, lambda s: finish(s, 0.0, git_commit())):
                 cmd = command(stage)
                 print(f"[{stage.name}] {' '.join(cmd)}", flush=True)
                 r = stage.resources

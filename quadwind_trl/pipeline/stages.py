@@ -66,6 +66,19 @@ def is_done(stage: Stage, force: Sequence[str]) -> bool:
     return stage.output.exists() and not is_forced(stage, force) and not stage.rerun
 
 
+def settle(stage: Stage, force: Sequence[str], finished: set[str], finish: Callable[[Stage], None]) -> bool:
+    """Settle in this process a stage that needs no recipe run: one already done is skipped, one
+    that is only ``after`` is finished by ``finish``; False where the recipe has to run."""
+    if is_done(stage, force):
+        print(f"[{stage.name}] done already ({stage.output}); skipping", flush=True)
+        finished.add(stage.name)
+        return True
+    if not stage.args:
+        finish(stage)
+        return True
+    return False
+
+
 def check_all_ran(failed: Sequence[str], waiting: Sequence[Stage]) -> None:
     """End a run whose stages ``failed`` (exit 1), or that left stages ``waiting`` for ones never run."""
     if failed:
