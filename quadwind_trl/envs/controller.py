@@ -48,8 +48,7 @@ simulator's state TensorDict (``state["base"]``); nothing here holds state betwe
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import NamedTuple
+from dataclasses import dataclass
 
 import torch
 from torch import Tensor
@@ -59,28 +58,9 @@ from typing import Protocol
 from tensordict import TensorDict
 
 from ..config import GRAVITY_M_S2, ControllerConfig, VehicleConfig
-from .rotations import matmul, matvec, norm, vee
-from .tensordicts import unchecked
+from .rotations import matmul, matvec, vee
 from .trajectories.library import Reference
 from .vehicle import VehicleParams, drag_force_body
-
-
-class PDOperands(NamedTuple):
-    """The numbers :func:`pd_control` combines, as tensors on the gains' device, the negated
-    gains negated once: an eager op converts a Python number operand at every use
-    (``aten::_to_copy``), a tensor not at all, and a float32 tensor holds the value that
-    conversion gives, so the results are the same bits."""
-
-    neg_kp: Tensor
-    neg_kd: Tensor
-    neg_k_att: Tensor
-    neg_k_rate: Tensor
-    neg_pos_error_limit: Tensor
-    gravity: Tensor
-    tan_max_tilt: Tensor
-    mass: Tensor
-    one: Tensor
-    half: Tensor
 
 
 @dataclass
@@ -95,15 +75,6 @@ class ControllerParams:
     inertia: Tensor
     thrust_min: float
     thrust_max: float
-    operands: PDOperands = field(init=False, repr=False)
-
-    def __post_init__(self):
-        num = lambda v: torch.tensor(v, dtype=torch.float32, device=self.kp.device)  # noqa: E731
-        self.operands = PDOperands(
-            neg_kp=-self.kp, neg_kd=-self.kd, neg_k_att=-self.k_att, neg_k_rate=-self.k_rate,
-            neg_pos_error_limit=-self.pos_error_limit, gravity=num(GRAVITY_M_S2), tan_max_tilt=num(self.tan_max_tilt),
-            mass=num(self.mass), one=num(1.0), half=num(0.5),
-        )
 
     @classmethod
     def from_config(
@@ -180,32 +151,30 @@ def pd_control(
     """The PD wrench for a batch; ``rot`` is the body-to-world rotation matrix ``[N, 3, 3]``,
     ``ref_yaw`` and ``ref_yaw_rate`` are ``[N, 1]``; ``acc_extra`` ``[N, 3]`` (m/s^2, world) is
     added to the outer loop's desired acceleration before the tilt limit (None: the paper's PD)."""
-    k = p.operands
-    pos_err = torch.maximum(torch.minimum(pos - ref_pos, p.pos_error_limit), k.neg_pos_error_limit)
-    acc_des = k.neg_kp * pos_err + k.neg_kd * (vel - ref_vel) + ref_acc
+    pos_err = torch.maximum(torch.minimum(pos - ref_pos, p.pos_error_limit), -p.pos_error_limit)
+    acc_des = -p.kp * pos_err - p.kd * (vel - ref_vel) + ref_acc
     if acc_extra is not None:  # a config constant: the PD alone runs exactly the paper's ops
         acc_des = acc_des + acc_extra
-    acc_z = (acc_des[..., 2:] + k.gravity).clamp_min(0.05 * GRAVITY_M_S2)
+    acc_z = (acc_des[..., 2:] + GRAVITY_M_S2).clamp_min(0.05 * GRAVITY_M_S2)
     horiz = acc_des[..., :2]
-    horiz_norm = norm(horiz)
-    horiz_max = acc_z * k.tan_max_tilt
+    horiz_norm = horiz.norm(dim=-1, keepdim=True)
+    horiz_max = acc_z * p.tan_max_tilt
     tilt_saturated = horiz_norm > horiz_max
-    horiz = horiz * torch.where(tilt_saturated, horiz_max / horiz_norm.clamp_min(1e-9), k.one)
-    force_des = k.mass * torch.cat((horiz, acc_z), -1)
+    horiz = horiz * torch.where(tilt_saturated, horiz_max / horiz_norm.clamp_min(1e-9), 1.0)
+    force_des = p.mass * torch.cat((horiz, acc_z), -1)
 
     b3 = rot[..., :, 2]
     thrust = (force_des * b3).sum(-1, keepdim=True).clamp(p.thrust_min, p.thrust_max)
-    force_norm = norm(force_des)
+    force_norm = force_des.norm(dim=-1, keepdim=True)
     b3_des = force_des / force_norm
     heading = torch.cat((torch.cos(ref_yaw), torch.sin(ref_yaw), torch.zeros_like(ref_yaw)), -1)
     b2_des = torch.linalg.cross(b3_des, heading)
-    b2_des = b2_des / norm(b2_des).clamp_min(1e-9)
+    b2_des = b2_des / b2_des.norm(dim=-1, keepdim=True).clamp_min(1e-9)
     b1_des = torch.linalg.cross(b2_des, b3_des)
     rot_des = torch.stack((b1_des, b2_des, b3_des), -1)
 
     # Angular-velocity feedforward from the reference jerk (flatness), in the desired body frame.
-    # m / |f| as 1 / |f| times m: what a Python number over a tensor computes
-    h_w = (force_norm.reciprocal() * k.mass) * (ref_jerk - (ref_jerk * b3_des).sum(-1, keepdim=True) * b3_des)
+    h_w = (p.mass / force_norm) * (ref_jerk - (ref_jerk * b3_des).sum(-1, keepdim=True) * b3_des)
     omega_des = torch.cat(
         (
             -(h_w * b2_des).sum(-1, keepdim=True),
@@ -215,9 +184,9 @@ def pd_control(
         -1,
     )
     rel = matmul(rot.transpose(-1, -2), rot_des)
-    err_rot = k.half * vee(rel.transpose(-1, -2) - rel)
+    err_rot = 0.5 * vee(rel.transpose(-1, -2) - rel)
     err_rate = omega - matvec(rel, omega_des)
-    torque = k.neg_k_att * err_rot + k.neg_k_rate * err_rate + torch.linalg.cross(omega, p.inertia * omega)
+    torque = -p.k_att * err_rot - p.k_rate * err_rate + torch.linalg.cross(omega, p.inertia * omega)
 
     tilt_cmd = torch.acos((b3_des[..., 2:]).clamp(-1.0, 1.0))
     return PDOutput(torch.cat((thrust, torque), -1), tilt_cmd, tilt_saturated)
@@ -320,7 +289,7 @@ class CascadeController:
             # on the ground before arming the accelerometer reads the ground's reaction: no estimate
             new["force_hat"] = torch.where(x.armed, force_hat, state["force_hat"])
             new["thrust_hat"] = thrust_hat
-        return unchecked(state.batch_size, new)
+        return TensorDict(new, batch_size=state.batch_size)
 
 
 def make_base_controller(cfg: ControllerConfig, vehicle: VehicleConfig, dt_s: float,

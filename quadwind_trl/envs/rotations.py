@@ -11,9 +11,7 @@ from torch import Tensor
 class _Tables(NamedTuple):
     """Index and sign tables that let :func:`quat_mul` and :func:`quat_to_rotmat` evaluate their
     textbook expressions four or nine entries per operation, with the same roundings (``a - b``
-    is ``a + (-1) b`` and ``2 s`` is ``s + s``, exactly): a dozen eager ops instead of thirty;
-    and the numbers :func:`quat_integrate` combines, as tensors (an eager op converts a Python
-    number operand at every use, a tensor of the operand's dtype not at all: the same bits)."""
+    is ``a + (-1) b`` and ``2 s`` is ``s + s``, exactly): a dozen eager ops instead of thirty."""
 
     mul_index: Tensor  # quat_mul: terms 1-3 of each component in the outer product a b^T
     mul_sign: Tensor
@@ -22,8 +20,6 @@ class _Tables(NamedTuple):
     rotmat_sign: Tensor
     diagonal: Tensor
     one: Tensor
-    sinc_series_below: Tensor  # quat_integrate: the angle below which sin(x)/x is its Taylor series
-    six: Tensor
 
 
 _TABLES: dict[tuple[torch.device, torch.dtype], _Tables] = {}
@@ -46,8 +42,6 @@ def _tables(device: torch.device, dtype: torch.dtype) -> _Tables:
             rotmat_sign=sign([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0]),
             diagonal=index([True, False, False, False, True, False, False, False, True]),
             one=sign(1.0),
-            sinc_series_below=sign(1e-4),
-            six=sign(6.0),
         )
     return _TABLES[key]
 
@@ -76,7 +70,7 @@ def body_z_vertical(q: Tensor) -> Tensor:
     xy = q[..., 1:3]
     squares = xy * xy
     half = squares[..., :1] + squares[..., 1:]
-    return _tables(q.device, q.dtype).one - (half + half)
+    return 1.0 - (half + half)
 
 
 def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
@@ -118,14 +112,13 @@ def quat_integrate(q: Tensor, omega_body: Tensor, half_dt: Tensor | float) -> Te
     """Rotate ``q`` by a constant body rate over ``2 half_dt`` (exact exponential map),
     renormalised. ``half_dt``: half the step, a number or (for an eager caller that steps often:
     no conversion per use) a 0-dim tensor of the rate's dtype."""
-    t = _tables(q.device, q.dtype)
     half_angle = half_dt * omega_body
-    theta = norm(half_angle)
+    theta = torch.linalg.vector_norm(half_angle, dim=-1, keepdim=True)
     # sin(theta)/theta, with its Taylor series where theta is tiny (no division by zero)
-    sinc = torch.where(theta < t.sinc_series_below, t.one - theta * theta / t.six, torch.sin(theta) / theta.clamp_min(1e-12))
+    sinc = torch.where(theta < 1e-4, 1.0 - theta * theta / 6.0, torch.sin(theta) / theta.clamp_min(1e-12))
     dq = torch.cat((torch.cos(theta), sinc * half_angle), -1)
     out = quat_mul(q, dq)
-    return out / norm(out)
+    return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
 
 
 # Small products as broadcast multiply-and-sum rather than ``@``: as fast for 3x3 and 4x4, fused
@@ -146,12 +139,6 @@ def vecmat(v: Tensor, m: Tensor) -> Tensor:
 def matmul(a: Tensor, b: Tensor) -> Tensor:
     """``a @ b`` for batches of small matrices, batch-size independent."""
     return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
-
-
-def norm(v: Tensor) -> Tensor:
-    """``v.norm(dim=-1, keepdim=True)``: the kernel ``Tensor.norm`` calls, without its Python
-    dispatch (as long as an eager op on a small batch)."""
-    return torch.linalg.vector_norm(v, dim=-1, keepdim=True)
 
 
 def rotate(r: Tensor, v: Tensor) -> Tensor:

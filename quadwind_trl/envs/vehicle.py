@@ -188,12 +188,11 @@ def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero |
         ct = ct_blade - o.inflow_ct * inflow
         speed = torch.sqrt(mu2 + inflow.square())
         # 2 x and 4 x as sums (exact, as the products are) and s / x as reciprocal times s (what
-        # a Python float over a tensor computes): no Python number operand in the loop; a + b / c
-        # and a - b / c one op each, addcdiv (a + (v b) / c with v = 1 or -1: the same bits)
+        # a Python float over a tensor computes): no Python number operand in the loop
         twice, cube = speed + speed, speed**3
-        residual = torch.addcdiv(inflow - climb, ct, twice, value=-1)  # inflow - climb - ct / twice
-        slope = torch.addcdiv(o.one + (twice + twice).reciprocal() * o.half_solidity_lift, ct * inflow, cube + cube)
-        inflow = torch.addcdiv(inflow, residual, slope, value=-1)  # inflow - residual / slope
+        residual = inflow - climb - ct / twice
+        slope = o.one + (twice + twice).reciprocal() * o.half_solidity_lift + ct * inflow / (cube + cube)
+        inflow = inflow - residual / slope
     # beyond zero thrust (inflow faster than the blades' pitch: windmill state) a fixed-pitch
     # propeller brakes rather than pulls; the model stops at zero thrust
     return ((ct_blade - o.inflow_ct * inflow) / o.static_ct).clamp_min(0.0)
