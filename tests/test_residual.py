@@ -87,3 +87,17 @@ def test_the_report_section_renders_every_seed_the_goal_and_the_check():
     assert "met by 1 of 2 seeds (1)." in text
     assert any(r.startswith("| all | +25.0 (+20.0 to +30.0) |") for r in rows)
     assert "equal to the bit for seeds 0, 1" in text
+
+
+def test_the_training_table_says_what_a_residual_on_a_classical_base_is_measured_against():
+    from quadwind_trl.evaluation.report import training_section
+
+    def manifest(controller: dict) -> dict:
+        return {"command": "python recipes/ppo_horizontal.py", "git_commit": "abc", "frames": 1, "wall_time_s": 60.0,
+                "evals": [], "env_spec": {"env_config": {"controller": controller}}}
+
+    rows = training_section({"on_pd": manifest({}), "on_dob": manifest({"disturbance": "observer"}),
+                             "on_pid_ff": manifest({"ki_pos": [2.0, 2.0, 2.0], "disturbance": "wind_model"})}).splitlines()
+    assert any(r.startswith("| on_pd | ") for r in rows)
+    assert any(r.startswith("| on_dob (against its base, PD + disturbance observer) |") for r in rows)
+    assert any(r.startswith("| on_pid_ff (against its base, PD + integral + wind feed-forward) |") for r in rows)

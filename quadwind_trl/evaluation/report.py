@@ -650,7 +650,7 @@ def training_section(manifests: dict[str, dict]) -> str:
         evals = "; ".join(f"{int(e['frames']):,} -> {e['improvement_rmse_xy_pct']:+.1f} % ({e['win_rate']:.2f})"
                           for e in m.get("evals", []))
         command = "python recipes/" + m["command"].split("recipes/", 1)[-1]
-        lines.append(f"| {name} | `{command}` | `{m.get('git_commit')}` | {m['frames']:,} | "
+        lines.append(f"| {name}{_base_note(m)} | `{command}` | `{m.get('git_commit')}` | {m['frames']:,} | "
                      f"{wall_time(m['wall_time_s'])} | {evals} |")
     lines += ["", "![learning curves](figures/learning_curves.png)", ""]
     return "\n".join(lines)
@@ -761,6 +761,17 @@ def _on_pd(manifest: dict) -> bool:
     manifests older than the additions have none)."""
     controller = manifest.get("env_spec", {}).get("env_config", {}).get("controller", {})
     return controller.get("disturbance", "none") == "none" and not any(controller.get("ki_pos", ()))
+
+
+def _base_note(manifest: dict) -> str:
+    """For a policy trained on a classical base, what its "vs PD" figures are measured against."""
+    if _on_pd(manifest):
+        return ""
+    controller = manifest["env_spec"]["env_config"]["controller"]
+    parts = ["integral"] if any(controller.get("ki_pos", ())) else []
+    parts += [{"observer": "disturbance observer", "wind_model": "wind feed-forward"}[controller["disturbance"]]] if (
+        controller.get("disturbance", "none") != "none") else []
+    return f" (against its base, PD + {' + '.join(parts)})"
 
 
 def classical_section(searches: dict[str, dict], manifests: dict[str, dict]) -> str:
