@@ -194,13 +194,16 @@ def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000,
     _check_same_episodes(tables)
     keys = set().union(*(t.keys() for t in tables.values()))
     phases = [p for p in PHASES if f"aware_{METRIC}_{p}" in keys]
+    by_wind = summarise_column(tables, METRIC, resamples, comparisons, shares)
+    if "zeroing_share" in shares:  # the paper's own measure, beside ours
+        by_wind = _with_paper(by_wind, sweep)
     return {
         "sweep": sweep,
         "metric": METRIC,
         "level": LEVEL,
         "seeds": list(results),
         "episodes": next(iter(tables.values())).batch_size[0],
-        "by_wind": _with_paper(summarise_column(tables, METRIC, resamples, comparisons, shares), sweep),
+        "by_wind": by_wind,
         "by_phase": {p: summarise_column(tables, f"{METRIC}_{p}", resamples, comparisons, shares) for p in phases},
         # how much of a flight each phase is: the wind-aware policy's samples, per episode and seed
         "phase_samples_per_episode": {
@@ -220,13 +223,11 @@ def feedforward_by_wind(classical: dict, seeds: Mapping[str, dict] | None = None
         reference = episode_table_from_json(next(iter(seeds.values()))["episodes_table"])
         _check_same_episodes({"classical": table, "seeds": reference})
     comparisons = feedforward_comparisons(classical["controllers"])
+    flat = seed_values(table, METRIC, resamples, {f"{law}/{value}": pair for (law, value), pair in comparisons.items()}, {})
     out: dict[str, dict] = {}
-    for group, mask in wind_groups(table).items():
-        row: dict = {}
-        for (law, value), (baseline, other) in comparisons.items():
-            pair = _finite([table[f"{baseline}_{METRIC}"], table[f"{other}_{METRIC}"]], mask)
-            row.setdefault(law, {})[value] = None if pair is None else paired_summary(*pair, resamples=resamples)
-        out[group] = row
+    for group, row in flat.items():
+        for law, value in comparisons:
+            out.setdefault(group, {}).setdefault(law, {})[value] = row[f"{law}/{value}"]
     return out
 
 
