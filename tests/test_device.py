@@ -5,8 +5,12 @@ from __future__ import annotations
 import pytest
 import torch
 
-from quadwind_trl.config import EnvConfig
+from dataclasses import replace
+
+from quadwind_trl.config import ControllerConfig, EnvConfig
 from quadwind_trl.envs import QuadWindEnv, make_scenarios
+from quadwind_trl.keys import BASE_WIND_KEY
+from quadwind_trl.regimes import classical_controller
 from quadwind_trl.rl.config import PPOConfig
 from quadwind_trl.rl.trainer import PPOTrainer
 
@@ -16,24 +20,32 @@ from test_ppo import hover_spec
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device on this machine")
 
 
-def _flown(device: str) -> torch.Tensor:
+def _flown(device: str, controller: str | None = None) -> torch.Tensor:
+    """60 steps of two rows under a varying action; ``controller`` a classical base law by name (the
+    feed-forward laws read a constant wind estimate), None the paper's PD."""
     cfg = EnvConfig(trajectories=short_trajectories())
+    changes = classical_controller("horizontal", controller)[0] if controller else {}
+    cfg = replace(cfg, controller=replace(ControllerConfig(), **changes))
     sc = make_scenarios(2, traj_id=[1, 7], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
-                        turb_seed=torch.tensor([3, 4]), sensor_seed=torch.tensor([5, 6]), device=device)
+                        turb_seed=torch.tensor([3, 4]), sensor_seed=torch.tensor([5, 6]), start_step=-1, device=device)
     env = QuadWindEnv(cfg, batch_size=[2], device=device)
     td = env.reset(scenario=sc)
     positions = []
     for k in range(60):
         td["action"] = torch.full((2, 4), 0.2 * ((k % 5) - 2), device=device)
+        if cfg.controller.needs_wind:
+            td[BASE_WIND_KEY] = torch.tensor([[3.0, -5.0], [-2.0, 6.0]], device=device)
         td = env.step(td)["next"]
         assert td["truth", "pos"].device.type == torch.device(device).type
         positions.append(td["truth", "pos"].cpu())
     return torch.stack(positions, 1)
 
 
-def test_env_flies_on_cuda_as_on_cpu():
-    # the same operations on another device: equal to float rounding (not bit for bit)
-    torch.testing.assert_close(_flown("cuda"), _flown("cpu"), rtol=1e-4, atol=1e-3)
+@pytest.mark.parametrize("controller", [None, "pid", "dob", "pid_ff"])
+def test_env_flies_on_cuda_as_on_cpu(controller):
+    # the same operations on another device: equal to float rounding (not bit for bit); the
+    # classical laws' state (integral, observer filter) lives on the env's device too
+    torch.testing.assert_close(_flown("cuda", controller), _flown("cpu", controller), rtol=1e-4, atol=1e-3)
 
 
 def test_ppo_trains_on_cuda(tmp_path):
