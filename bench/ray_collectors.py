@@ -23,17 +23,21 @@ manifest, estimator every tau / 30, de-synchronised first episodes, eager simula
 untrained PPO actor sampling actions. ``--batches`` are timed after one warm-up batch.
 
 One parseable line per setting: ``collect setting=... frames_per_batch=... s_per_batch=...
-frames_per_s=... startup_s=... driver_cpu_s=... wait_s=... rows_busy_s=... estimator_s=...
-weight_sync_s=... load_1min=...``, the seconds per batch: ``driver_cpu_s`` the CPU time of the
-process running the policy; ``wait_s`` its wall time waiting for the Ray actors; ``rows_busy_s``
-the busiest actor's time resetting and stepping its rows (``wait_s`` minus it: the transport and
-Ray's round trips); ``estimator_s`` the wind estimator's, summed over the processes holding rows.
+frames_per_s=... startup_s=... driver_cpu_s=... wait_s=... rows_busy_s=... rows_cpu_s=...
+estimator_s=... weight_sync_s=... load_1min=...``, the seconds per batch: ``driver_cpu_s`` the
+CPU time of the process running the policy; ``wait_s`` its wall time waiting for the Ray actors;
+``rows_busy_s`` the busiest actor's wall time resetting and stepping its rows (``wait_s`` minus
+it: the transport and Ray's round trips); ``rows_cpu_s`` the CPU time of the processes holding
+the rows (Ray actors: their rows and Ray's work for them; local workers), summed; ``estimator_s`` the wind estimator's, summed over the processes holding
+rows. On a shared machine the CPU times say what a setting costs; the wall times also say how
+much of the cores it got.
 ``startup_s``: Ray's start and the env's construction (every actor importing torch and building its rows).
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 import torch
@@ -64,6 +68,12 @@ def parse_setting(setting: str) -> tuple[str, int]:
     return kind, int(k)
 
 
+def process_cpu_s(pid: int) -> float:
+    """CPU seconds (user + system) of the process ``pid`` so far (Linux)."""
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")  # utime, stime: fields 14, 15 of stat
+
+
 class Counters:
     """Cumulative seconds of the parts of a batch, read before and after the timed batches."""
 
@@ -71,16 +81,23 @@ class Counters:
         self.env = env
 
     def read(self) -> dict[str, float]:
+        from torchrl.envs import ParallelEnv
+
         from quadwind_trl.envs import RayRowsEnv
         from quadwind_trl.rl.envs import estimator_seconds
 
-        out = {"driver_cpu_s": time.process_time(), "wait_s": 0.0, "rows_busy_s": 0.0, "estimator_s": 0.0}
+        out = {"driver_cpu_s": time.process_time(), "wait_s": 0.0, "rows_busy_s": 0.0, "rows_cpu_s": 0.0,
+               "estimator_s": 0.0}
         if self.env is None:  # a TorchRL RayCollector: its envs are remote
             return out
         out["estimator_s"] = estimator_seconds(self.env)
         rows = self.env.base_env
         if isinstance(rows, RayRowsEnv):
-            out["wait_s"], out["rows_busy_s"] = rows.wait_s, max(rows.busy_seconds())
+            usage = rows.usage()
+            out["wait_s"], out["rows_busy_s"] = rows.wait_s, max(busy for busy, _ in usage)
+            out["rows_cpu_s"] = sum(cpu for _, cpu in usage)
+        elif isinstance(rows, ParallelEnv):  # local workers: their processes' CPU time, from Linux's account
+            out["rows_cpu_s"] = sum(process_cpu_s(worker.pid) for worker in rows._workers)
         return out
 
 

@@ -61,8 +61,9 @@ class RowsActor:
         """``env.<method>(*args)``: what ``ParallelEnv`` forwards to each worker."""
         return getattr(self.env, method)(*args)
 
-    def seconds(self) -> float:
-        return self.busy_s
+    def usage(self) -> tuple[float, float]:
+        """(s spent resetting and stepping the rows, CPU s of this actor's process), so far."""
+        return self.busy_s, time.process_time()
 
     def close(self) -> None:
         self.env.close()
@@ -148,9 +149,10 @@ class RayRowsEnv(EnvBase):
         ``ParallelEnv``'s forwarding of an attribute to its workers)."""
         return self._get([a.call.remote(method, *args) for a in self._actors])
 
-    def busy_seconds(self) -> list[float]:
-        """Seconds each actor has spent resetting and stepping its rows so far."""
-        return self._get([a.seconds.remote() for a in self._actors])
+    def usage(self) -> list[tuple[float, float]]:
+        """Per actor: the seconds it has spent resetting and stepping its rows so far, and its
+        process's CPU seconds (the rows, and Ray's work for the actor; from its start)."""
+        return self._get([a.usage.remote() for a in self._actors])
 
     def close(self, *, raise_if_closed: bool = True) -> None:
         actors = self.__dict__.get("_actors")
