@@ -126,7 +126,8 @@ class RayRowsEnv(EnvBase):
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         mask = None if tensordict is None else tensordict.get("_reset", None)
-        restart = (torch.ones(len(self._actors), dtype=torch.bool) if mask is None
+        # before any output every actor answers (there are no last outputs to give the others)
+        restart = (torch.ones(len(self._actors), dtype=torch.bool) if mask is None or self._last is None
                    else mask.reshape(len(self._actors), -1).any(-1).cpu())
         if tensordict is not None and not tensordict.is_empty():
             tensordict = tensordict.cpu()

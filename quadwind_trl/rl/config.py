@@ -137,7 +137,6 @@ class PPOConfig:
             raise ValueError(f"PPOConfig.init_scale={self.init_scale} must be > 0")
         return self
 
-
     def _validate_collector(self) -> None:
         if self.collector not in COLLECTORS:
             raise ValueError(f"PPOConfig.collector={self.collector!r}; allowed: {list(COLLECTORS)}")
