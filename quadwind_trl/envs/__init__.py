@@ -13,6 +13,7 @@ Frames and conventions, fixed once for the whole project:
 """
 from .parallel import parallel_env
 from .quad_env import QuadWindEnv, ScenarioSampler
+from .ray_rows import RayRowsEnv
 from .scenarios import RegimeRanges, make_scenarios, sample_regimes
 from .simulator import QuadSimulator
 from .trajectories import (
@@ -33,6 +34,7 @@ __all__ = [
     "QuadWindEnv",
     "ScenarioSampler",
     "parallel_env",
+    "RayRowsEnv",
     "QuadSimulator",
     "RegimeRanges",
     "make_scenarios",

@@ -15,8 +15,8 @@ over with the same arguments: the long stages pass ``--resume`` and go on from t
 checkpoint, the others start again and replace their partial output. A recipe that exits with an
 error is not retried: it would fail the same way.
 
-This module imports Ray only when :func:`connect` or :func:`run_stages_on_ray` is called; the local
-executor never imports it.
+This module imports Ray only when :func:`connect` (:mod:`quadwind_trl.ray_cluster`) or
+:func:`run_stages_on_ray` is called; the local executor never imports it.
 """
 from __future__ import annotations
 
@@ -31,66 +31,32 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from ..manifest import KERNEL_ENV, git_commit
+from .. import ray_cluster
+from ..ray_cluster import RayUnavailable, parse_address  # noqa: F401  (the executor's errors and address format)
 from .stages import Stage, check_all_ran, record_time, settle, stage_needs
 
 #: times Ray reruns a stage whose worker died or whose recipe was killed
 DEFAULT_MAX_RETRIES = 3
-#: seconds to wait for a TCP answer from ``--address HOST:PORT`` before calling it unreachable
-#: (Ray's own connection attempt waits minutes before it gives up)
-CONNECT_TIMEOUT_S = 5.0
 #: seconds between the driver's checks for finished stages
 POLL_S = 1.0
-
-
-class RayUnavailable(RuntimeError):
-    """Ray is not installed, or the cluster named by ``--address`` cannot be reached."""
 
 
 class StageKilled(RuntimeError):
     """A stage's recipe was killed by a signal; Ray retries the task."""
 
 
+# what a missing Ray's error names: the option that needs it, and what to do instead
+_NEEDS_RAY = {"option": "--executor ray", "alternative": "leave out --executor ray and --address to run the stages as local processes"}
+
+
 def _import_ray():
-    try:
-        import ray
-    except ImportError:
-        raise RayUnavailable("--executor ray needs Ray, which is not installed: pip install 'quadwind_trl[ray]', "
-                             "or leave out --executor ray and --address to run the stages as local processes") from None
-    return ray
-
-
-def parse_address(address: str) -> tuple[str, int]:
-    """``HOST:PORT`` of a Ray head node (the GCS port, 6379 unless ``ray start --port`` chose another)."""
-    host, sep, port = address.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise RayUnavailable(f"--address {address!r}: expected 'auto' or HOST:PORT of the Ray head node "
-                             "(PORT 1-65535, e.g. 10.0.0.1:6379)")
-    return host, int(port)
+    return ray_cluster.import_ray(**_NEEDS_RAY)
 
 
 def connect(address: str | None, local_cpus: int) -> str:
-    """Join the Ray cluster at ``address`` ("auto": the one ``ray start`` left on this machine, or
-    ``RAY_ADDRESS``; ``HOST:PORT``: its head node), or with None start a local Ray instance of
-    ``local_cpus`` CPUs for this command. Returns a line saying which, with the cluster's CPUs."""
-    ray = _import_ray()
-    if address is None:
-        ray.init(num_cpus=local_cpus, include_dashboard=False)
-        where = "a local Ray instance"
-    else:
-        if address != "auto":
-            host, port = parse_address(address)
-            try:
-                socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
-            except OSError as err:
-                raise RayUnavailable(f"--address {address}: no Ray head node answers there ({err}); start one with "
-                                     "'ray start --head' on that machine, or check the host and port") from None
-        try:
-            ray.init(address=address)
-        except ConnectionError as err:
-            raise RayUnavailable(f"--address {address}: {err}") from None
-        where = f"the Ray cluster at {address}"
-    nodes = [n for n in ray.nodes() if n.get("Alive")]
-    return f"{where}: {len(nodes)} node{'s' if len(nodes) != 1 else ''}, {ray.cluster_resources().get('CPU', 0):g} CPUs"
+    """Join the Ray cluster at ``address`` (``--address``: "auto" or the head node's HOST:PORT), or
+    with None start a local Ray instance of ``local_cpus`` CPUs (:func:`quadwind_trl.ray_cluster.connect`)."""
+    return ray_cluster.connect(address, local_cpus, **_NEEDS_RAY)
 
 
 def _die_with_parent() -> None:

@@ -18,8 +18,10 @@ from ..config import SENSING, EnvConfig, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..keys import INPUT_GROUPS, input_channels
 from ..quick import PPO_QUICK
+from ..ray_cluster import RayUnavailable
 from ..regimes import CLASSICAL_CONTROLLERS, PAPER_REWARD_W_Z, REWARD_W_Z, classical_controller, regime_config
-from .config import LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
+from .collection import check_device, check_ray
+from .config import COLLECTORS, LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from .paired import validation_scenarios
 from .trainer import PPOTrainer, ResumeMismatch
@@ -63,6 +65,17 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--collect-workers", type=int, default=None,
                    help="collection processes, one single-threaded simulator per core, each stepping num_envs / W rows "
                         "(default 1; the rows fly the same episodes whatever W: a speed setting, which --resume may change)")
+    p.add_argument("--collector", default=None, choices=list(COLLECTORS),
+                   help="where the rows are stepped: local (this machine: one process, or --collect-workers; default) "
+                        "or ray (--num-collectors Ray actors of num_envs / K rows each, on a local Ray instance or the "
+                        "cluster at --address; the policy and the normalisation stay in this process, and the batches "
+                        "are those of --collect-workers K, bit for bit: a speed setting, which --resume may change; "
+                        "docs/scaling.md)")
+    p.add_argument("--num-collectors", type=int, default=None, metavar="K",
+                   help="--collector ray: Ray actors stepping num_envs / K rows each, 1 CPU apiece (default 1)")
+    p.add_argument("--address", default=None, metavar="auto|HOST:PORT",
+                   help="--collector ray: the Ray cluster (auto: the one 'ray start' joined on this machine, or "
+                        "RAY_ADDRESS; HOST:PORT: its head node); default: a local Ray instance of K CPUs for the run")
     p.add_argument("--background-eval", action=argparse.BooleanOptionalAction, default=None,
                    help="fly the periodic evaluations in a second process while training goes on (the same metrics and "
                         f"kept policy; a speed setting, which --resume may change; default: {DEFAULT_BACKGROUND_EVAL}, "
@@ -148,6 +161,7 @@ def recipe_ppo_config(regime: str, args: argparse.Namespace, base: PPOConfig | N
     for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
                       ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
                       ("reward_scaling", "reward_scaling"), ("collect_workers", "collect_workers"),
+                      ("collector", "collector"), ("num_collectors", "num_collectors"), ("address", "ray_address"),
                       ("background_eval", "background_eval")):
         if getattr(args, arg) is not None:
             overrides[name] = getattr(args, arg)
@@ -175,7 +189,12 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
             print(f"  {line}")
     try:
         cfg = recipe_ppo_config(regime, args, quick_cfg)
+        check_device(cfg, spec.device)
     except ValueError as err:  # e.g. --collect-workers 3 with 64 envs: the message names the field and the rule
+        raise SystemExit(f"error: {err}") from None
+    try:  # a missing Ray, or an --address where no head node answers, before anything is built
+        check_ray(cfg)
+    except RayUnavailable as err:
         raise SystemExit(f"error: {err}") from None
     spec = replace(spec, num_envs=cfg.num_envs)
 
@@ -213,7 +232,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     t0 = time.perf_counter()
     try:
         result = trainer.train(resume=args.resume)
-    except (FileExistsError, FileNotFoundError, ResumeMismatch) as err:  # --resume mistakes
+    except (FileExistsError, FileNotFoundError, ResumeMismatch, RayUnavailable) as err:  # --resume mistakes, no Ray cluster
         raise SystemExit(f"error: {err}") from None
     manifest = json.loads((out / "policy.json").read_text())
     m = manifest["metrics"]

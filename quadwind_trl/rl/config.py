@@ -45,6 +45,9 @@ LR_SCHEDULES = ("constant", "linear")
 # "none": the paper's rewards; "return_std": divided by the running std of the discounted return
 # (SB3's VecNormalize(norm_reward=True); rl/reward_scale.py)
 REWARD_SCALINGS = ("none", "return_std")
+# where the rows are stepped: "local" (this process, or collect_workers processes of this machine)
+# or "ray" (num_collectors Ray actors, on any node of a Ray cluster; rl/collection.py)
+COLLECTORS = ("local", "ray")
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,13 @@ class PPOConfig:
     # collection processes (rl.envs.build_env(workers=)): one single-threaded simulator process per
     # core, each stepping num_envs / collect_workers rows; the rows fly the same episodes as with 1
     collect_workers: int = 1
+    # "ray": the rows split over num_collectors Ray actors as collect_workers splits them over local
+    # processes (the same batches, bit for bit); the policy, the normalisation and the update stay here
+    collector: str = "local"  # one of COLLECTORS
+    num_collectors: int = 1  # Ray actors of num_envs / num_collectors rows each (collector="ray")
+    # the Ray cluster (collector="ray"): "auto" (the one `ray start` joined here, or RAY_ADDRESS),
+    # "HOST:PORT" of its head node, or None: a local Ray instance of num_collectors CPUs for the run
+    ray_address: str | None = None
     # fly the periodic evaluations in a child process while training goes on (rl.evaluator): the
     # same metrics, off the run's critical path where a core is idle during collection
     background_eval: bool = False
@@ -103,12 +113,14 @@ class PPOConfig:
         return self.lr
 
     def validate(self) -> "PPOConfig":
-        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames", "collect_workers") + tuple(
+        for name in ("num_envs", "steps_per_env", "epochs", "minibatch", "total_frames", "collect_workers",
+                     "num_collectors") + tuple(
                 name for name in ("threads", "update_threads") if getattr(self, name) is not None):
             if getattr(self, name) < 1:
                 raise ValueError(f"PPOConfig.{name}={getattr(self, name)} must be >= 1")
         if self.num_envs % self.collect_workers:
             raise ValueError(f"PPOConfig.collect_workers={self.collect_workers} must divide num_envs={self.num_envs}")
+        self._validate_collector()
         if self.frames_per_batch % self.minibatch:
             raise ValueError(
                 f"PPOConfig: num_envs * steps_per_env = {self.frames_per_batch} must be a multiple of minibatch={self.minibatch}"
@@ -124,6 +136,28 @@ class PPOConfig:
         if not 0 < self.init_scale:
             raise ValueError(f"PPOConfig.init_scale={self.init_scale} must be > 0")
         return self
+
+    def _validate_collector(self) -> None:
+        if self.collector not in COLLECTORS:
+            raise ValueError(f"PPOConfig.collector={self.collector!r}; allowed: {list(COLLECTORS)}")
+        if self.num_envs % self.num_collectors:
+            raise ValueError(f"PPOConfig.num_collectors={self.num_collectors} (--num-collectors) must divide "
+                             f"num_envs={self.num_envs} (--num-envs)")
+        if self.collector == "local":
+            if self.num_collectors != 1 or self.ray_address is not None:
+                raise ValueError(f"PPOConfig.num_collectors={self.num_collectors}, ray_address={self.ray_address!r}: "
+                                 "Ray settings, allowed only with collector='ray' (--collector ray)")
+            return
+        if self.collect_workers != 1:
+            raise ValueError(f"PPOConfig.collect_workers={self.collect_workers}: local collection processes; with "
+                             "collector='ray' the rows are split over num_collectors Ray actors (--num-collectors)")
+        if self.ray_address not in (None, "auto"):
+            from ..ray_cluster import RayUnavailable, parse_address
+
+            try:
+                parse_address(self.ray_address)
+            except RayUnavailable as err:  # its message names --address and the form expected
+                raise ValueError(f"PPOConfig.ray_address: {err}") from None
 
 
 @dataclass(frozen=True)

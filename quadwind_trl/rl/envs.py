@@ -50,6 +50,7 @@ from ..config import EnvConfig
 from ..envs.controller import BaseController
 from ..envs.parallel import QuietParallelEnv
 from ..envs.quad_env import QuadWindEnv, ScenarioSampler
+from ..envs.ray_rows import RayRowsEnv
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
@@ -62,6 +63,8 @@ T = TypeVar("T")
 Regime = Literal["horizontal", "vertical"]
 WindInput = Literal["estimate", "zero", "truth"]
 WIND_INPUTS = ("estimate", "zero", "truth")
+WorkersOn = Literal["local", "ray"]
+WORKERS_ON = ("local", "ray")  # where build_env's collection workers run
 DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
 # s: the estimator at every 10 Hz log tick (what every policy trained before the setting existed saw)
@@ -225,6 +228,7 @@ def build_env(
     vecnorm_state: dict | None = None,
     freeze_norm: bool | None = None,
     workers: int = 1,
+    workers_on: WorkersOn = "local",
     controller: BaseController | None = None,
 ) -> TransformedEnv:
     """The transformed env of ``spec`` (see the module docstring for the stack).
@@ -240,26 +244,36 @@ def build_env(
             normalisation pools every row); the batch is ``[workers, num_envs / workers]`` and
             its rows fly exactly the episodes of the one-process env. The workers return what the
             policy and the trainer read: the observation, the reward and the done flags.
+        workers_on: where the workers run: "local" (processes of this machine, one per core) or
+            "ray" (Ray actors of 1 CPU each, on any node of the Ray cluster this process has joined;
+            the same row split, so the same batch as local workers, bit for bit; also with
+            ``workers=1``: all rows in one actor). The rows then fly on the CPU.
         controller: a base controller object instead of the one the config chooses (one process
             only; e.g. a validation search flying a gain per row,
             :mod:`quadwind_trl.evaluation.base_search`).
     """
-    if controller is not None and workers != 1:
-        raise ValueError(f"build_env: a controller object flies in one process; got workers={workers}")
+    if controller is not None and (workers != 1 or workers_on != "local"):
+        raise ValueError(f"build_env: a controller object flies in one process; got workers={workers}, "
+                         f"workers_on={workers_on!r}")
+    if workers_on not in WORKERS_ON:
+        raise ValueError(f"build_env: workers_on={workers_on!r}; allowed: {WORKERS_ON}")
+    if workers_on == "ray" and torch.device(spec.device).type != "cpu":
+        raise ValueError(f"build_env: workers_on='ray' flies the rows on the CPU; got RLEnvSpec.device={spec.device!r}")
     if spec.wind_input != "truth" and estimator is None:
         raise ValueError(f"wind_input={spec.wind_input!r} needs an estimator")
     if estimator is not None and estimator.schema != spec.regime:
         raise ValueError(f"the estimator was trained on the {estimator.schema!r} schema, not {spec.regime!r}")
     if workers < 1 or spec.num_envs % workers:
         raise ValueError(f"workers={workers}; allowed: >= 1 and dividing RLEnvSpec.num_envs={spec.num_envs}")
-    if workers == 1:
+    if workers == 1 and workers_on == "local":
         env = TransformedEnv(_base_env(spec, controller=controller),
                              Compose(*_row_transforms(spec, estimator), *_batch_transforms(spec)))
     else:
         n = spec.num_envs // workers
         # the estimator travels to the workers pickled, so every worker flies this very network
         makers = [partial(_row_worker, spec, estimator, slice(i * n, (i + 1) * n), 1) for i in range(workers)]
-        env = TransformedEnv(QuietParallelEnv(workers, makers), Compose(*_batch_transforms(spec)))
+        rows = QuietParallelEnv(workers, makers) if workers_on == "local" else RayRowsEnv(makers, num_cpus=1)
+        env = TransformedEnv(rows, Compose(*_batch_transforms(spec)))
     if vecnorm_state is not None:
         load_vecnorm_state(env, vecnorm_state)
     if freeze_norm or (freeze_norm is None and vecnorm_state is not None):
@@ -323,18 +337,22 @@ def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> d
     }
 
 
-def _workers(env: TransformedEnv) -> ParallelEnv | None:
+def _on_workers(env: TransformedEnv, method: str, *args) -> list | None:
+    """``RowWorkerEnv.<method>(*args)`` in each collection worker of ``env``, local or on Ray, their
+    answers in row order; None for a one-process env."""
     base = env.base_env
-    return base if isinstance(base, ParallelEnv) else None
+    if isinstance(base, ParallelEnv):
+        return getattr(base, method)(*args)
+    if isinstance(base, RayRowsEnv):
+        return base.call(method, *args)
+    return None
 
 
 def set_trajectories(env: TransformedEnv, trajectories: tuple[str, ...], truncate: bool) -> None:
     """Sample the training episodes that start from now on among ``trajectories`` (a curriculum
     stage); with ``truncate``, end every running episode at the next step so the set takes effect
     at once. Works on a one-process env and on one with collection workers (in each of them)."""
-    workers = _workers(env)
-    if workers is not None:
-        workers.set_trajectories(tuple(trajectories), truncate)
+    if _on_workers(env, "set_trajectories", tuple(trajectories), truncate) is not None:
         return
     base = env.base_env
     base.scenario_sampler = replace(base.scenario_sampler, trajectories=tuple(trajectories))
@@ -345,9 +363,9 @@ def set_trajectories(env: TransformedEnv, trajectories: tuple[str, ...], truncat
 def estimator_seconds(env: TransformedEnv) -> float:
     """Seconds the env's wind estimator has run so far (summed over collection workers; they run
     at the same time); raises ``KeyError`` when the env has no ``WindEstimate``."""
-    workers = _workers(env)
-    if workers is not None:
-        return float(sum(workers.estimator_seconds()))
+    seconds = _on_workers(env, "estimator_seconds")
+    if seconds is not None:
+        return float(sum(seconds))
     return wind_estimate(env).estimator_seconds
 
 

@@ -29,6 +29,7 @@ from ..estimator import WindEstimator
 from ..manifest import command_line, git_commit, platform_info, repo_relative, save_atomic, write_json
 from ..outputs import OutputLock, truncate_scalar_logs
 from ..keys import OBSERVATION_CHANNELS
+from . import collection
 from .config import Curriculum, PPOConfig
 from .envs import (EnvFactory, RLEnvSpec, estimator_seconds, load_vecnorm_state, policy_env_settings, set_trajectories,
                    vecnorm_state_dict)
@@ -41,7 +42,7 @@ from .update import PPOUpdate
 # PPOConfig fields a resumed run may change: how long it runs, how often it evaluates and
 # checkpoints, and its threads and processes; any other change would make it another recipe
 RESUMABLE_CHANGES = ("total_frames", "eval_every_frames", "checkpoint_every_frames", "threads", "update_threads",
-                     "collect_workers", "background_eval")
+                     "collect_workers", "collector", "num_collectors", "ray_address", "background_eval")
 # what runs saved before a PPOConfig field existed used (their checkpoints lack it)
 SAVED_BEFORE_FIELD = {"lr_schedule": "constant", "reward_scaling": "none"}
 
@@ -195,6 +196,7 @@ class PPOTrainer:
         self.factory = EnvFactory(env_spec, bundle=estimator_bundle)
         self.on_iteration = on_iteration
         self.stop_when = stop_when  # called with the evaluations after each one: True ends the run there
+        self._collection: dict = collection.describe(self.cfg)  # where the rows run (_start adds the Ray nodes)
 
     @property
     def checkpoint_path(self) -> Path:
@@ -212,7 +214,10 @@ class PPOTrainer:
         if self.cfg.threads:
             torch.set_num_threads(self.cfg.threads)
         # one writer per run directory: a second run on it (a resume included) is refused at once
-        with OutputLock(self.out_dir, "training run", "wait for it to finish, or choose another out_dir (--out)"):
+        with OutputLock(self.out_dir, "training run", "wait for it to finish, or choose another out_dir (--out)"), \
+                collection.connected(self.cfg) as where:
+            if where and self.progress:
+                print(f"collection: {self.cfg.num_collectors} Ray actors on {where}", flush=True)
             session = self._start(self._check_resume(resume))
             try:
                 if session.progress.frames < self.cfg.planned_frames:
@@ -293,7 +298,8 @@ class PPOTrainer:
                                                       "command": self.command})
         # the training env: a fresh seed per (resumed) segment so episodes do not repeat
         env = self.factory(seed=spec.seed + 7919 * progress.iteration,
-                           desync_steps=episode_steps_hint(spec) if cfg.desync else 0, workers=cfg.collect_workers)
+                           desync_steps=episode_steps_hint(spec) if cfg.desync else 0, **collection.env_layout(cfg))
+        self._collection = collection.describe(cfg, env)
         network = getattr(self.factory.bundle, "model", None)  # a WindEstimator need not be a network
         if network is not None:
             learner.check_frozen(network)
@@ -496,6 +502,7 @@ class PPOTrainer:
             "iterations": p.iteration,
             "wall_time_s": round(p.wall, 1),
             "torch_threads": torch.get_num_threads(),
+            "collection": self._collection,  # this session's: a resume may collect otherwise
             "selection": {"rule": SELECTION_RULE, "evaluations": len(p.evals), **(p.best or {"frames": p.frames})},
             # the evaluation of the kept policy
             "metrics": next((e for e in p.evals if p.best and e["frames"] == p.best["frames"]), {}),
