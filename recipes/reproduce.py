@@ -41,7 +41,7 @@ from pathlib import Path
 
 from quadwind_trl.manifest import repo_relative
 from quadwind_trl.outputs import hold_for_command
-from quadwind_trl.pipeline import Stage, is_forced
+from quadwind_trl.pipeline import Stage, is_forced, longest_chain
 from quadwind_trl.pipeline.run import add_executor_arguments, check_executor_arguments, run_plan
 from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
 
@@ -241,6 +241,8 @@ def main() -> None:
     parser.add_argument("--force", nargs="*", default=[], help="stages to rerun even if their output exists ('all' for every stage)")
     parser.add_argument("--only", nargs="*", default=None, help="run only these stages")
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "quick", help="--quick: where everything goes (default runs/quick)")
+    parser.add_argument("--chain", action="store_true",
+                        help="print the plan's longest chain of dependent stages by recorded wall time, and run nothing")
     add_executor_arguments(parser)
     args = parser.parse_args()
     check_executor_arguments(parser, args)
@@ -251,6 +253,9 @@ def main() -> None:
         if name not in names:
             parser.error(f"unknown stage {name!r}; stages: {', '.join(names)}")
     times = (args.out.resolve() if args.quick else ROOT / "results") / "pipeline_times.json"
+    if args.chain:
+        print(chain_summary(plan, times))
+        return
     # one reproduction per record: each stage also locks its own output
     hold_for_command(times, what="reproduction record",
                      hint="wait for that reproduction to finish" + (", or choose another --out" if args.quick else ""))
@@ -261,6 +266,20 @@ def main() -> None:
     print(f"this session's stages finished in {elapsed:.0f} s ({elapsed / 60:.1f} min); per stage, over sessions: {times}")
     if args.quick:
         print(toy_summary(args.out.resolve()))
+
+
+def chain_summary(plan: list[Stage], times: Path) -> str:
+    """The longest chain (``--chain``): each stage's recorded time, the total, and the stages
+    with no record, which make it a lower bound."""
+    record = json.loads(times.read_text()) if times.exists() else {}
+    chain = longest_chain(plan, record)
+    total = sum(entry.get("wall_time_s", 0.0) for name, entry in record.items() if name in {s.name for s in plan})
+    lines = [f"{name}: {'no record' if seconds is None else f'{seconds:.0f} s'}" for name, seconds in chain.stages]
+    lines.append(f"longest chain {chain.seconds:.0f} s ({chain.seconds / 3600:.1f} h) of {total:.0f} s recorded over "
+                 f"{len(plan) - len(chain.untimed)} of {len(plan)} stages ({times})")
+    if chain.untimed:
+        lines.append(f"no recorded time (counted as 0 s: the chain is a lower bound): {', '.join(chain.untimed)}")
+    return "\n".join(lines)
 
 
 def stage_command(stage: Stage, force: list[str]) -> list[str]:

@@ -248,3 +248,21 @@ def test_a_failed_stage_starts_nothing_more_and_the_command_fails(tmp_path, monk
     assert (tmp_path / "slow.json").exists()  # the running one finished
     assert not (tmp_path / "after.json").exists() and not (tmp_path / "later.json").exists()
     assert "[fail] failed (exit status 3)" in capsys.readouterr().out
+
+
+def test_the_longest_chain_follows_what_each_stage_needs_and_names_the_untimed(tmp_path):
+    from quadwind_trl.pipeline import Stage, longest_chain
+
+    def stage(name, needs=None):
+        return Stage(name, ("x.py",), tmp_path / name, needs=needs)
+
+    # a -> b, a -> c -> d, and e after every stage before it (needs=None)
+    plan = [stage("a", ()), stage("b", ("a",)), stage("c", ("a",)), stage("d", ("b", "c")), stage("e")]
+    times = {"a": {"wall_time_s": 10.0}, "b": {"wall_time_s": 5.0}, "c": {"wall_time_s": 20.0}, "e": {"wall_time_s": 1.0}}
+    chain = longest_chain(plan, times)
+    assert chain.stages == (("a", 10.0), ("c", 20.0), ("d", None), ("e", 1.0))
+    assert chain.seconds == 31.0 and chain.untimed == ("d",)
+    # a longer b moves the chain through b
+    times["b"] = {"wall_time_s": 30.0}
+    assert longest_chain(plan, times).stages[:2] == (("a", 10.0), ("b", 30.0))
+    assert longest_chain([], {}).seconds == 0.0

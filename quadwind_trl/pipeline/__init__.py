@@ -7,8 +7,10 @@ graph and runs it (:func:`~quadwind_trl.pipeline.run.run_plan`) with one of two 
 the default, which imports no Ray) or :mod:`~quadwind_trl.pipeline.ray_executor` (``--executor
 ray``: each stage a Ray task, on one machine or a cluster). Both skip the stages whose output
 exists, run the ``after`` step of a stage in the driving process, and add each finished stage's
-wall time, node and load to the same ``pipeline_times.json`` (:func:`record_time`).
+wall time, node and load to the same ``pipeline_times.json`` (:func:`record_time`), from which
+:func:`longest_chain` gives the time a reproduction takes on enough nodes.
 """
-from .stages import Stage, StageResources, check_all_ran, is_done, is_forced, record_time, stage_needs
+from .stages import Chain, Stage, StageResources, check_all_ran, is_done, is_forced, longest_chain, record_time, stage_needs
 
-__all__ = ["Stage", "StageResources", "check_all_ran", "is_done", "is_forced", "record_time", "stage_needs"]
+__all__ = ["Chain", "Stage", "StageResources", "check_all_ran", "is_done", "is_forced", "longest_chain", "record_time",
+           "stage_needs"]

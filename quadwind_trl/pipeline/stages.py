@@ -88,6 +88,40 @@ def check_all_ran(failed: Sequence[str], waiting: Sequence[Stage]) -> None:
         raise RuntimeError(f"stages {[s.name for s in waiting]} wait for stages that never run")
 
 
+@dataclass(frozen=True)
+class Chain:
+    """The plan's longest chain of dependent stages by recorded wall time: on enough nodes, a
+    reproduction takes about this long whatever else runs beside it."""
+
+    seconds: float  # the chain's recorded wall time, stage by stage
+    stages: tuple[tuple[str, float | None], ...]  # (name, recorded seconds) from first to last
+    untimed: tuple[str, ...]  # stages of the plan with no recorded time, counted as 0 s
+
+
+def longest_chain(plan: Sequence[Stage], times: dict[str, dict]) -> Chain:
+    """The longest chain of ``plan`` (a stage after every stage it needs) under the wall times of
+    ``times`` (``pipeline_times.json``'s entries). A stage with no record counts as 0 s and is
+    listed in ``untimed``: the chain is then a lower bound."""
+    finish: dict[str, float] = {}
+    previous: dict[str, str | None] = {}
+    untimed = []
+    for stage in plan:  # a plan lists every stage after the stages it needs
+        seconds = times.get(stage.name, {}).get("wall_time_s")
+        if seconds is None:
+            untimed.append(stage.name)
+        # on a tie the later stage, so that an untimed stage (0 s) stays on the chain it ends
+        before = max(reversed(stage_needs(stage, plan)), key=finish.__getitem__, default=None)
+        finish[stage.name] = (seconds or 0.0) + (finish[before] if before else 0.0)
+        previous[stage.name] = before
+    name = max(finish, key=finish.__getitem__, default=None)
+    seconds = finish[name] if name else 0.0
+    chain = []
+    while name:
+        chain.append((name, times.get(name, {}).get("wall_time_s")))
+        name = previous[name]
+    return Chain(seconds, tuple(reversed(chain)), tuple(untimed))
+
+
 def record_time(path: Path, stage: str, seconds: float, commit: str | None, *, node: str | None = None,
                 load: float | None = None, **extra) -> None:
     """Add a finished stage's wall time, with the machine it ran on (``node``: this one by
