@@ -59,6 +59,7 @@ from tensordict import TensorDict
 
 from ..config import GRAVITY_M_S2, ControllerConfig, VehicleConfig
 from .rotations import matmul, matvec, vee
+from .tensordicts import unchecked
 from .trajectories.library import Reference
 from .vehicle import VehicleParams, drag_force_body
 
@@ -289,7 +290,7 @@ class CascadeController:
             # on the ground before arming the accelerometer reads the ground's reaction: no estimate
             new["force_hat"] = torch.where(x.armed, force_hat, state["force_hat"])
             new["thrust_hat"] = thrust_hat
-        return TensorDict(new, batch_size=state.batch_size)
+        return unchecked(state.batch_size, new)
 
 
 def make_base_controller(cfg: ControllerConfig, vehicle: VehicleConfig, dt_s: float,

@@ -51,6 +51,7 @@ from .navigation import NavigationParams, init_navigation, update_navigation
 from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
+from .tensordicts import unchecked
 from .trajectories import TrajectoryLibrary, registered_patterns
 from .vehicle import RigidBody, VehicleParams, allocate, physics_step, step_constants
 
@@ -187,14 +188,14 @@ class QuadSimulator:
                 imu_sub.append((body.omega, specific_force))
         n = state.batch_size
         finite = torch.isfinite(torch.cat((body.pos, body.vel, body.quat, body.omega), -1)).all(-1, keepdim=True)
-        imu_truth_sub = None if not imu_sub else _tensordict(torch.Size([*n, len(imu_sub)]), {
+        imu_truth_sub = None if not imu_sub else unchecked(torch.Size([*n, len(imu_sub)]), {
             "gyro": torch.stack([gyro for gyro, _ in imu_sub], 1), "accel": torch.stack([accel for _, accel in imu_sub], 1)})
-        new = _tensordict(n, {
+        new = unchecked(n, {
             "step": state["step"] + 1,
-            "body": _tensordict(n, {**body._asdict(), "specific_force": specific_force}),  # initial()'s key order
+            "body": unchecked(n, {**body._asdict(), "specific_force": specific_force}),  # initial()'s key order
             "wind": state["wind"],
             "sensors": state["sensors"],
-            "control": _tensordict(n, dict(ff=ff, cmd=cmd, **monitor)),  # initial()'s key order
+            "control": unchecked(n, dict(ff=ff, cmd=cmd, **monitor)),  # initial()'s key order
             **({"base": state["base"]} if "base" in state.keys() else {}),
             "nav": state["nav"],
         })
@@ -228,15 +229,15 @@ class QuadSimulator:
         rot = quat_to_rotmat(body["quat"])
         euler = euler_from_rotmat(rot)
         # what each instrument would read without noise or bias
-        truth = TensorDict(gps_pos=pos, gps_vel=body["vel"], baro_alt=pos[..., 2:], attitude=euler,
-                           gyro=body["omega"], accel=body["specific_force"], batch_size=state.batch_size)
+        truth = unchecked(state.batch_size, dict(gps_pos=pos, gps_vel=body["vel"], baro_alt=pos[..., 2:], attitude=euler,
+                                                 gyro=body["omega"], accel=body["specific_force"]))
         force = torch.ones_like(step, dtype=torch.bool).unsqueeze(-1) if first else None
         meas, sensor_state = self.sensors.measure(params["sensors"], state["sensors"], truth, step, force=force,
                                                   imu_truth_sub=imu_truth_sub)
 
         feedback = self.cfg.controller.feedback
         if feedback == "truth":
-            nav = TensorDict(pos=pos, vel=body["vel"], baro_offset=torch.zeros_like(pos[..., 2:]), batch_size=state.batch_size)
+            nav = unchecked(state.batch_size, dict(pos=pos, vel=body["vel"], baro_offset=torch.zeros_like(pos[..., 2:])))
             nav_rot, nav_omega = rot, body["omega"]
         else:
             # the measured attitude as a rotation, once: the filter's prediction and the PD read it
@@ -264,23 +265,15 @@ class QuadSimulator:
 
         n = state.batch_size
         out = dict(state.items())
-        out["wind"] = _tensordict(n, {**dict(wind_state.items()), "mean": mean, "total": total})
-        out["sensors"] = _tensordict(n, {**dict(sensor_state.items()), MEAS_KEY: meas})
+        out["wind"] = unchecked(n, {**dict(wind_state.items()), "mean": mean, "total": total})
+        out["sensors"] = unchecked(n, {**dict(sensor_state.items()), MEAS_KEY: meas})
         out["nav"] = nav
-        out["ref"] = _tensordict(n, dict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw))
-        out["control"] = _tensordict(n, {**dict(state["control"].items()), "pd_wrench": pd.wrench, "tilt_cmd": pd.tilt_cmd,
+        out["ref"] = unchecked(n, dict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw))
+        out["control"] = unchecked(n, {**dict(state["control"].items()), "pd_wrench": pd.wrench, "tilt_cmd": pd.tilt_cmd,
                                          "tilt_saturated": pd.tilt_saturated})
         if base is not None:
             out["base"] = base
-        return _tensordict(n, out)
-
-
-def _tensordict(batch_size: torch.Size, entries: dict) -> TensorDict:
-    """A TensorDict of the simulator's own entries (tensors and TensorDicts of batch
-    ``batch_size`` on its device), built without the constructor's per-entry checks: a step
-    builds a dozen, and at small batches the checks cost more than the arithmetic (compiled,
-    ``_new_unsafe`` is the constructor)."""
-    return TensorDict._new_unsafe(entries, batch_size=batch_size)
+        return unchecked(n, out)
 
 
 def _contiguous(td: TensorDict) -> TensorDict:
@@ -306,7 +299,7 @@ def _sanitize(state: TensorDict, broken: Tensor, zero: Tensor, level: Tensor) ->
     body = state["body"]
     fixes = {"pos": state["ref", "pos"], "pos_carry": zero, "vel": zero, "quat": level, "omega": zero, "specific_force": zero}
     out = dict(state.items())
-    out["body"] = _tensordict(n, {k: torch.where(broken, fixes[k], v) if k in fixes else v for k, v in body.items()})
+    out["body"] = unchecked(n, {k: torch.where(broken, fixes[k], v) if k in fixes else v for k, v in body.items()})
     # the measurements (a sub-tensordict of named entries), the wrenches and the wind are zeroed,
     # packed side by side: three ops, not three per entry
     zeroed = {"sensors": (MEAS_KEY,), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
@@ -324,6 +317,6 @@ def _sanitize(state: TensorDict, broken: Tensor, zero: Tensor, level: Tensor) ->
         else:
             nested.setdefault((group, key), {})[entry] = leaf
     for (group, key), entries in nested.items():
-        groups[group][key] = _tensordict(n, entries)
-    out.update({group: _tensordict(n, entries) for group, entries in groups.items()})
-    return _tensordict(n, out)
+        groups[group][key] = unchecked(n, entries)
+    out.update({group: unchecked(n, entries) for group, entries in groups.items()})
+    return unchecked(n, out)
