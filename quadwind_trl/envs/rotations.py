@@ -141,6 +141,12 @@ def matmul(a: Tensor, b: Tensor) -> Tensor:
     return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
 
 
+def norm(v: Tensor) -> Tensor:
+    """``v.norm(dim=-1, keepdim=True)``: the kernel ``Tensor.norm`` calls, without its Python
+    dispatch (as long as an eager op on a small batch)."""
+    return torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+
+
 def rotate(r: Tensor, v: Tensor) -> Tensor:
     """``R @ v`` for batches of matrices and vectors."""
     return matvec(r, v)

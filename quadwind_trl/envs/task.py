@@ -20,7 +20,7 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import EnvConfig
-from .rotations import body_z_vertical
+from .rotations import body_z_vertical, norm
 
 
 class Task(Protocol):
@@ -59,10 +59,10 @@ class TrackingTask:
         ff, ff_prev = after["control", "ff"], before["control", "ff"]
         reward = (
             rw.alive_bonus
-            - rw.w_xy * _norm(err[..., :2])
+            - rw.w_xy * norm(err[..., :2])
             - rw.w_z * err[..., 2:].abs()
-            - rw.w_ff * _norm(ff)
-            - rw.w_dff * _norm(ff - ff_prev)
+            - rw.w_ff * norm(ff)
+            - rw.w_dff * norm(ff - ff_prev)
         )
         return torch.where(after["finite"], reward, 0.0)
 
@@ -77,8 +77,3 @@ class TrackingTask:
     def decision_reward(self, mean_step_reward: Tensor, terminated: Tensor) -> Tensor:
         return mean_step_reward + torch.where(terminated, self.reward.crash_penalty, 0.0)
 
-
-def _norm(v: Tensor) -> Tensor:
-    """``v.norm(dim=-1, keepdim=True)``: the kernel ``Tensor.norm`` calls, without its Python
-    dispatch (as long as the rest of the step's eager op)."""
-    return torch.linalg.vector_norm(v, dim=-1, keepdim=True)
