@@ -182,7 +182,7 @@ class QuadWindEnv(EnvBase):
             missing = [m for m in ("step_reward", "done", "decision_reward") if not callable(getattr(task, m, None))]
             if missing:
                 raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
-        self.task = task if task is not None else TrackingTask(self.config)
+        self.task = task if task is not None else TrackingTask(self.config, self.device)
         if compile_step:
             _allow_compiled_envs()
         self._advance = torch.compile(self._held_control_step, dynamic=False) if compile_step else self._held_control_step
