@@ -19,6 +19,7 @@ from .sensors import INSTRUMENTS
 from .controller import BaseController
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
+from .tensordicts import entry
 from .trajectories import HORIZONTAL, trajectory_ids
 
 
@@ -191,6 +192,11 @@ class QuadWindEnv(EnvBase):
         # costs nothing and one graph serves every control step of the hold
         self._first_advance = self._advance if compile_step else functools.partial(self._held_control_step, merge=False)
         self._compiled = compile_step
+        # a decision's running totals (reward sum, control steps, terminated, truncated) start
+        # from these: made once, as a step only makes new tensors from them
+        n, dev = self.batch_size[0], self.device
+        flag = lambda: torch.zeros(n, 1, dtype=torch.bool, device=dev)  # noqa: E731
+        self._no_totals = (torch.zeros(n, 1, device=dev), torch.zeros(n, 1, device=dev), flag(), flag())
         self.params: TensorDict | None = None
         self.state: TensorDict | None = None
         self._make_specs()
@@ -271,7 +277,6 @@ class QuadWindEnv(EnvBase):
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action", None)
         check_action(action, self.batch_size[0], 4)
-        n, dev = self.batch_size[0], self.device
         wind_ne = None
         if self.sim.controller.needs_wind:
             wind_ne = tensordict.get(BASE_WIND_KEY, None)
@@ -280,10 +285,7 @@ class QuadWindEnv(EnvBase):
                                f"{BASE_WIND_KEY!r} [N, 2] (north, east, m/s) beside the action "
                                "(transforms.BaseWindInput writes it from the wind estimate)")
         state = self.state
-        reward = torch.zeros(n, 1, device=dev)
-        steps = torch.zeros(n, 1, device=dev)
-        terminated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
-        truncated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
+        reward, steps, terminated, truncated = self._no_totals
         # eagerly, the held steps run in inference mode: no autograd bookkeeping per op (a fifth of
         # the eager step at small batches); what they return leaves it as ordinary tensors. Not
         # for an action that asks for gradients through the simulator
@@ -296,30 +298,28 @@ class QuadWindEnv(EnvBase):
         if inference:
             state, reward, steps, terminated, truncated = _ordinary((state, reward, steps, terminated, truncated))
         self.state = state
-        out = self._observation(state)
-        out.set("reward", self.task.decision_reward(reward / steps, terminated))
-        out.set("terminated", terminated)
-        out.set("truncated", truncated)
-        out.set("done", terminated | truncated)
-        return out
+        return self._observation(state, reward=self.task.decision_reward(reward / steps, terminated),
+                                 terminated=terminated, truncated=truncated, done=terminated | truncated)
 
     # --- helpers --------------------------------------------------------------------------------
 
-    def _observation(self, s: TensorDict) -> TensorDict:
+    def _observation(self, s: TensorDict, **extra: torch.Tensor) -> TensorDict:
+        """The observation of state ``s``, with the entries ``extra`` (a step's reward and flags)."""
         entries = {
-            MEAS_KEY: dict(s["sensors", MEAS_KEY].items()),
-            "pos_error": s["nav", "pos"] - s["ref", "pos"],
-            "tilt_saturated": s["control", "tilt_saturated"],
-            "step": s["step"].unsqueeze(-1),
+            MEAS_KEY: dict(entry(s, "sensors", MEAS_KEY).items()),
+            "pos_error": entry(s, "nav", "pos") - entry(s, "ref", "pos"),
+            "tilt_saturated": entry(s, "control", "tilt_saturated"),
+            "step": entry(s, "step").unsqueeze(-1),
         }
         for key, (source, _) in _STATE_VIEWS.items():
             *parents, name = (key,) if isinstance(key, str) else key
             node = entries
             for parent in parents:
                 node = node.setdefault(parent, {})
-            node[name] = s[source]
+            node[name] = entry(s, *source)
         if self.config.residual.monitor is not None:
-            entries[MONITOR_KEY] = s["control", "monitor_left"] > 0
+            entries[MONITOR_KEY] = entry(s, "control", "monitor_left") > 0
+        entries.update(extra)
         # without the constructor's per-entry checks (they cost more than the step's arithmetic at
         # small batches): every entry is the simulator's, of batch [N] on this env's device
         return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=self.device)

@@ -48,10 +48,11 @@ from .atmosphere import Atmosphere
 from .controller import BaseController, ControlInputs, make_base_controller
 from .monitor import MonitorParams, monitor_gate
 from .navigation import NavigationParams, init_navigation, update_navigation
+from .operands import operands
 from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
-from .tensordicts import unchecked
+from .tensordicts import entry, unchecked
 from .trajectories import TrajectoryLibrary, registered_patterns
 from .vehicle import RigidBody, VehicleParams, allocate, physics_step, step_constants
 
@@ -91,6 +92,10 @@ class QuadSimulator:
         self.navigation = NavigationParams.from_config(c.navigation)
         self.action_scale = torch.tensor(c.residual.action_scale, device=dev)
         self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
+        # the residual smoother's weights and the unarmed command: Python numbers for a traced
+        # step, tensors for the eager one (operands.py)
+        self._numbers = (c.residual.smoothing, 1.0 - c.residual.smoothing, 0.0)
+        self._operands = (*(torch.tensor(v, device=dev) for v in self._numbers[:2]), self.physics_constants.zero)
         self.monitor = (None if c.residual.monitor is None else
                         MonitorParams.from_config(c.residual.monitor, c.controller, self.vehicle, c.timing.control_dt_s))
         self.control_dt = c.timing.control_dt_s
@@ -163,10 +168,10 @@ class QuadSimulator:
         """The state one control step on, every row under residual ``action`` in ``[-1, 1]^4``;
         ``wind_ne`` ``[N, 2]`` (north, east, m/s): the wind estimate a wind feed-forward base
         controller flies the next instant's law on (held over the step, as the action is)."""
-        r = self.cfg.residual
-        ff_prev = state["control", "ff"]
+        ff_prev = entry(state, "control", "ff")
         target = action.clamp(-1.0, 1.0) * self.action_scale
-        ff = r.smoothing * ff_prev + (1.0 - r.smoothing) * target
+        smoothing, one_minus_smoothing, zero = operands(self._operands, self._numbers)
+        ff = smoothing * ff_prev + one_minus_smoothing * target
         ff = ff_prev + torch.maximum(torch.minimum(ff - ff_prev, self.slew_limit), -self.slew_limit)
         monitor = {}
         if self.monitor is not None:  # a config constant: off, the step runs the same ops as before the monitor
@@ -175,10 +180,10 @@ class QuadSimulator:
                                                        self._cos_tilt(state), height_error,
                                                        state["control", "monitor_left"], self.monitor)
         armed = (state["step"] >= self.arm_step).unsqueeze(-1)
-        cmd = torch.where(armed, state["control", "pd_wrench"] + ff, 0.0)  # what is applied: motors off before arming
-        rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
+        cmd = torch.where(armed, entry(state, "control", "pd_wrench") + ff, zero)  # what is applied: motors off before arming
+        rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), zero)
 
-        body = RigidBody(*(state["body", k] for k in RigidBody._fields))
+        body = RigidBody(*(entry(state, "body", k) for k in RigidBody._fields))
         wind_total = state["wind", "total"]
         imu_sub = []  # what the IMU instruments read at their intermediate sample instants
         for i in range(1, self.cfg.timing.control_substeps + 1):
@@ -296,8 +301,8 @@ def _sanitize(state: TensorDict, broken: Tensor, zero: Tensor, level: Tensor) ->
     in the same step, on ``state["finite"]``). Branch-free: no host synchronisation in the step.
     ``zero``: a 0-dim zero of the state's dtype."""
     n = state.batch_size
-    body = state["body"]
-    fixes = {"pos": state["ref", "pos"], "pos_carry": zero, "vel": zero, "quat": level, "omega": zero, "specific_force": zero}
+    body = entry(state, "body")
+    fixes = {"pos": entry(state, "ref", "pos"), "pos_carry": zero, "vel": zero, "quat": level, "omega": zero, "specific_force": zero}
     out = dict(state.items())
     out["body"] = unchecked(n, {k: torch.where(broken, fixes[k], v) if k in fixes else v for k, v in body.items()})
     # the measurements (a sub-tensordict of named entries), the wrenches and the wind are zeroed,
@@ -305,17 +310,17 @@ def _sanitize(state: TensorDict, broken: Tensor, zero: Tensor, level: Tensor) ->
     zeroed = {"sensors": (MEAS_KEY,), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
     if "base" in state.keys():  # the base law's state restarts from zero in a parked row
         zeroed["base"] = tuple(state["base"].keys())
-    parts = [(group, key, entry) for group, keys in zeroed.items() for key in keys
-             for entry in (state[group, key].keys() if is_tensor_collection(state[group, key]) else (None,))]
-    leaves = [state[group, key] if entry is None else state[group, key, entry] for group, key, entry in parts]
+    groups = {group: dict(entry(state, group).items()) for group in zeroed}
+    parts = [(group, key, name) for group, keys in zeroed.items() for key in keys
+             for name in (groups[group][key].keys() if is_tensor_collection(groups[group][key]) else (None,))]
+    leaves = [groups[group][key] if name is None else entry(groups[group][key], name) for group, key, name in parts]
     packed = torch.where(broken, zero, torch.cat(leaves, -1).nan_to_num())
-    groups = {group: dict(state[group].items()) for group in zeroed}
     nested: dict[tuple[str, str], dict[str, Tensor]] = {}
-    for (group, key, entry), leaf in zip(parts, packed.split([leaf.shape[-1] for leaf in leaves], -1)):
-        if entry is None:
+    for (group, key, name), leaf in zip(parts, packed.split([leaf.shape[-1] for leaf in leaves], -1)):
+        if name is None:
             groups[group][key] = leaf
         else:
-            nested.setdefault((group, key), {})[entry] = leaf
+            nested.setdefault((group, key), {})[name] = leaf
     for (group, key), entries in nested.items():
         groups[group][key] = unchecked(n, entries)
     out.update({group: unchecked(n, entries) for group, entries in groups.items()})
