@@ -16,6 +16,7 @@ from ..keys import BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY
 from ..validation import check_action
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
+from .control_step import CompiledControlStep, held_control_step
 from .controller import BaseController
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
@@ -78,21 +79,6 @@ def _vec(n: int, dim: int, device, dtype=torch.float32) -> Unbounded:
 def _leaf_keys(td: TensorDict) -> list[NestedKey]:
     """The leaf keys of ``td``, sorted: a nested key by its path, beside the plain ones."""
     return sorted(td.keys(True, True), key=lambda k: (k,) if isinstance(k, str) else k)
-
-
-# Dynamo caches one compiled step per env instance (its guards hold the instance), and after
-# ``recompile_limit`` entries (torch's default: 8) it runs that code eagerly for every later
-# instance, silently: an ablation of three sweeps x five controllers, or a benchmark training
-# several runs in one process, then stepped its later envs ~6x slower (bench/time_to_policy.py).
-COMPILED_ENVS_PER_PROCESS = 64
-
-
-def _allow_compiled_envs() -> None:
-    """Raise dynamo's per-function recompile limit to :data:`COMPILED_ENVS_PER_PROCESS` (never lower it)."""
-    import torch._dynamo
-
-    cfg = torch._dynamo.config
-    cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_ENVS_PER_PROCESS)
 
 
 def _ordinary(value):
@@ -184,13 +170,13 @@ class QuadWindEnv(EnvBase):
             if missing:
                 raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
         self.task = task if task is not None else TrackingTask(self.config, self.device)
-        if compile_step:
-            _allow_compiled_envs()
-        self._advance = torch.compile(self._held_control_step, dynamic=False) if compile_step else self._held_control_step
+        self._advance = (CompiledControlStep(self.sim, self.task) if compile_step
+                         else functools.partial(held_control_step, self.sim, self.task))
         # a decision's first control step starts with no row ended, so its merge would select the
         # whole new state: eagerly that is a select per state leaf, skipped; compiled, the merge
         # costs nothing and one graph serves every control step of the hold
-        self._first_advance = self._advance if compile_step else functools.partial(self._held_control_step, merge=False)
+        self._first_advance = self._advance if compile_step else functools.partial(
+            held_control_step, self.sim, self.task, merge=False)
         self._compiled = compile_step
         # a decision's running totals (reward sum, control steps, terminated, truncated) start
         # from these: made once, as a step only makes new tensors from them
@@ -251,28 +237,6 @@ class QuadWindEnv(EnvBase):
         out = self._observation(self.state)
         out.update(self.full_done_spec.zero())
         return out
-
-    def _held_control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor,
-                           wind_ne: torch.Tensor | None, reward: torch.Tensor, steps: torch.Tensor,
-                           terminated: torch.Tensor, truncated: torch.Tensor, merge: bool = True):
-        """One control step of a held action, with the task's view of it, merged branch-free into
-        the decision's running totals ``(state, reward sum, steps, terminated, truncated)``: a row
-        whose episode ended earlier in the hold keeps its state and totals. Step and merge are one
-        function so that, compiled, they are one graph (no eager merge of every state leaf per
-        control step); the params do not change within an episode and are not merged.
-        ``merge=False``: no row has ended (the decision's first control step), the new state is
-        every row's."""
-        running = ~(terminated | truncated)
-        new = self.sim.step(params, state, action, wind_ne)
-        new_terminated, new_truncated = self.task.done(params, new)
-        new_reward = self.task.step_reward(params, state, new)
-        return (
-            new.where(running.reshape(-1), state) if merge else new,
-            reward + torch.where(running, new_reward, 0.0),
-            steps + running.to(steps.dtype),
-            torch.where(running, new_terminated, terminated),
-            torch.where(running, new_truncated, truncated),
-        )
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action", None)
