@@ -175,16 +175,16 @@ class QuadSimulator:
         ff = ff_prev + torch.maximum(torch.minimum(ff - ff_prev, self.slew_limit), -self.slew_limit)
         monitor = {}
         if self.monitor is not None:  # a config constant: off, the step runs the same ops as before the monitor
-            height_error = state["nav", "pos"][..., 2:] - state["ref", "pos"][..., 2:]
-            ff, monitor["monitor_left"] = monitor_gate(ff, state["control", "pd_wrench"][..., :1] + ff[..., :1],
+            height_error = entry(state, "nav", "pos")[..., 2:] - entry(state, "ref", "pos")[..., 2:]
+            ff, monitor["monitor_left"] = monitor_gate(ff, entry(state, "control", "pd_wrench")[..., :1] + ff[..., :1],
                                                        self._cos_tilt(state), height_error,
-                                                       state["control", "monitor_left"], self.monitor)
-        armed = (state["step"] >= self.arm_step).unsqueeze(-1)
+                                                       entry(state, "control", "monitor_left"), self.monitor)
+        armed = (entry(state, "step") >= self.arm_step).unsqueeze(-1)
         cmd = torch.where(armed, entry(state, "control", "pd_wrench") + ff, zero)  # what is applied: motors off before arming
         rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), zero)
 
         body = RigidBody(*(entry(state, "body", k) for k in RigidBody._fields))
-        wind_total = state["wind", "total"]
+        wind_total = entry(state, "wind", "total")
         imu_sub = []  # what the IMU instruments read at their intermediate sample instants
         for i in range(1, self.cfg.timing.control_substeps + 1):
             body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s,
@@ -196,13 +196,13 @@ class QuadSimulator:
         imu_truth_sub = None if not imu_sub else unchecked(torch.Size([*n, len(imu_sub)]), {
             "gyro": torch.stack([gyro for gyro, _ in imu_sub], 1), "accel": torch.stack([accel for _, accel in imu_sub], 1)})
         new = unchecked(n, {
-            "step": state["step"] + 1,
+            "step": entry(state, "step") + 1,
             "body": unchecked(n, {**body._asdict(), "specific_force": specific_force}),  # initial()'s key order
-            "wind": state["wind"],
-            "sensors": state["sensors"],
+            "wind": entry(state, "wind"),
+            "sensors": entry(state, "sensors"),
             "control": unchecked(n, dict(ff=ff, cmd=cmd, **monitor)),  # initial()'s key order
-            **({"base": state["base"]} if "base" in state.keys() else {}),
-            "nav": state["nav"],
+            **({"base": entry(state, "base")} if "base" in state.keys() else {}),
+            "nav": entry(state, "nav"),
         })
         new = self._observe_instant(params, new, first=False, imu_truth_sub=imu_truth_sub, wind_ne=wind_ne)
         new["finite"] = finite
@@ -227,31 +227,35 @@ class QuadSimulator:
         """``state`` completed with the wind, reference, sensors, navigation and the base
         controller's wrench at its current step (``imu_truth_sub``: the IMU's true inputs at its
         samples inside the step just flown; ``wind_ne``: the base law's wind estimate)."""
-        body, step, sc = state["body"], state["step"], params["scenario"]
-        pos = body["pos"]
-        mean, total, wind_state = self.atmosphere.sample(params["wind"], state["wind"], pos, self.control_dt)
-        ref = self.trajectories.reference(sc["traj_id"], step, params["pattern_start"], sc["altitude_m"])
-        rot = quat_to_rotmat(body["quat"])
+        body, step, sc = entry(state, "body"), entry(state, "step"), entry(params, "scenario")
+        pos = entry(body, "pos")
+        mean, total, wind_state = self.atmosphere.sample(entry(params, "wind"), entry(state, "wind"), pos,
+                                                         self.control_dt)
+        ref = self.trajectories.reference(entry(sc, "traj_id"), step, entry(params, "pattern_start"),
+                                          entry(sc, "altitude_m"))
+        rot = quat_to_rotmat(entry(body, "quat"))
         euler = euler_from_rotmat(rot)
         # what each instrument would read without noise or bias
-        truth = unchecked(state.batch_size, dict(gps_pos=pos, gps_vel=body["vel"], baro_alt=pos[..., 2:], attitude=euler,
-                                                 gyro=body["omega"], accel=body["specific_force"]))
+        truth = unchecked(state.batch_size, dict(gps_pos=pos, gps_vel=entry(body, "vel"), baro_alt=pos[..., 2:],
+                                                 attitude=euler, gyro=entry(body, "omega"),
+                                                 accel=entry(body, "specific_force")))
         force = torch.ones_like(step, dtype=torch.bool).unsqueeze(-1) if first else None
-        meas, sensor_state = self.sensors.measure(params["sensors"], state["sensors"], truth, step, force=force,
-                                                  imu_truth_sub=imu_truth_sub)
+        meas, sensor_state = self.sensors.measure(entry(params, "sensors"), entry(state, "sensors"), truth, step,
+                                                  force=force, imu_truth_sub=imu_truth_sub)
 
         feedback = self.cfg.controller.feedback
         if feedback == "truth":
-            nav = unchecked(state.batch_size, dict(pos=pos, vel=body["vel"], baro_offset=torch.zeros_like(pos[..., 2:])))
-            nav_rot, nav_omega = rot, body["omega"]
+            nav = unchecked(state.batch_size, dict(pos=pos, vel=entry(body, "vel"),
+                                                   baro_offset=torch.zeros_like(pos[..., 2:])))
+            nav_rot, nav_omega = rot, entry(body, "omega")
         else:
             # the measured attitude as a rotation, once: the filter's prediction and the PD read it
-            nav_rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
+            nav_rot = quat_to_rotmat(quat_from_euler(*entry(meas, "attitude").unbind(-1)))
             if feedback == "sensors" or first:
                 nav = init_navigation(meas)
             else:
                 nav = update_navigation(
-                    state["nav"],
+                    entry(state, "nav"),
                     meas,
                     self.sensors.imu_mean(sensor_state, "accel"),
                     self.sensors.ticks(step, "gps_pos"),
@@ -260,11 +264,11 @@ class QuadSimulator:
                     self.control_dt,
                     rot=nav_rot,
                 )
-            nav_omega = meas["gyro"]
+            nav_omega = entry(meas, "gyro")
         # the accelerometer as the law's feedback reads it: the true specific force with truth feedback
-        specific_force = body["specific_force"] if feedback == "truth" else meas["accel"]
-        inputs = ControlInputs(pos=nav["pos"], vel=nav["vel"], rot=nav_rot, omega=nav_omega, ref=ref,
-                               specific_force=specific_force, thrust_applied=state["control", "cmd"][..., :1],
+        specific_force = entry(body, "specific_force") if feedback == "truth" else entry(meas, "accel")
+        inputs = ControlInputs(pos=entry(nav, "pos"), vel=entry(nav, "vel"), rot=nav_rot, omega=nav_omega, ref=ref,
+                               specific_force=specific_force, thrust_applied=entry(state, "control", "cmd")[..., :1],
                                wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first)
         pd, base = self.controller(inputs, state.get("base", None))
 

@@ -22,6 +22,7 @@ from torch import Tensor
 from ..config import EnvConfig
 from .operands import operands
 from .rotations import body_z_vertical, norm
+from .tensordicts import entry
 
 
 class Task(Protocol):
