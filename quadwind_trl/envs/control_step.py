@@ -18,11 +18,13 @@ through ``torch.compile`` once per process for every env and batch size:
 """
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 import torch
-from tensordict import NestedKey, TensorDict
+from tensordict import TensorDict
 from torch import Tensor
 
 from .tensordicts import unchecked
@@ -39,10 +41,10 @@ COMPILED_STEPS_PER_PROCESS = 64
 
 def compile_cache_dir() -> Path:
     """Where compiled steps are kept between processes: inductor's cache folder, the environment
-    variable ``TORCHINDUCTOR_CACHE_DIR`` as it was when torch first read it (set it before
-    starting Python to move the cache), by default ``<temp dir>/torchinductor_<user>``
-    (``/tmp/torchinductor_<user>`` on Linux: emptied at a reboot). Torch reads the variable once
-    and writes its default back into it, so a value set later in the process is not used."""
+    variable ``TORCHINDUCTOR_CACHE_DIR``, by default ``<temp dir>/torchinductor_<user>``
+    (``/tmp/torchinductor_<user>`` on Linux: emptied at a reboot). Set it before starting Python
+    to move the cache: torch writes its default into the variable the first time it looks, and
+    importing torchrl already does."""
     from torch._inductor.runtime.cache_dir_utils import cache_dir
 
     return Path(cache_dir())
@@ -74,8 +76,8 @@ def held_control_step(sim: QuadSimulator, task: Task, params: TensorDict, state:
 class _Layout(NamedTuple):
     """The leaf keys of the params and the state, in order: how their leaves are flattened."""
 
-    params: tuple[NestedKey, ...]
-    state: tuple[NestedKey, ...]
+    params: tuple[tuple[str, ...], ...]
+    state: tuple[tuple[str, ...], ...]
 
 
 def _leaf_keys(td: TensorDict) -> tuple[tuple[str, ...], ...]:
@@ -110,17 +112,15 @@ def _flat_held_control_step(sim: QuadSimulator, task: Task, layout: _Layout, par
     return tuple(new.get(key) for key in layout.state), reward, steps, terminated, truncated
 
 
-_COMPILED: list = []  # the process's one compiled function, made on first use
+@functools.cache
+def _compiled_function() -> Callable:
+    """The process's one compiled :func:`_flat_held_control_step` (compiled at its first call,
+    not here), with dynamo's recompile limit raised to :data:`COMPILED_STEPS_PER_PROCESS`."""
+    import torch._dynamo
 
-
-def _compiled_function():
-    if not _COMPILED:
-        import torch._dynamo
-
-        cfg = torch._dynamo.config
-        cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_STEPS_PER_PROCESS)
-        _COMPILED.append(torch.compile(_flat_held_control_step))
-    return _COMPILED[0]
+    cfg = torch._dynamo.config
+    cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_STEPS_PER_PROCESS)
+    return torch.compile(_flat_held_control_step)
 
 
 def _distinct(leaves: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
