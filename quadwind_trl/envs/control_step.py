@@ -27,7 +27,7 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-from .tensordicts import unchecked
+from .tensordicts import entry, unchecked
 
 if TYPE_CHECKING:
     from .simulator import QuadSimulator
@@ -147,13 +147,15 @@ class CompiledControlStep:
 
     def __call__(self, params: TensorDict, state: TensorDict, action: Tensor, wind_ne: Tensor | None,
                  reward: Tensor, steps: Tensor, terminated: Tensor, truncated: Tensor):
-        if self._layout is None:  # the keys are the config's: the same at every step
+        first = self._layout is None
+        if first:  # the keys are the config's: the same at every step
             self._layout = _Layout(_leaf_keys(params), _leaf_keys(state))
         layout = self._layout
-        leaves = _distinct((*(params.get(k) for k in layout.params), *(state.get(k) for k in layout.state)))
+        leaves = _distinct((*(entry(params, *k) for k in layout.params), *(entry(state, *k) for k in layout.state)))
         params_leaves, state_leaves = leaves[:len(layout.params)], leaves[len(layout.params):]
         totals = (reward, steps, terminated, truncated)
-        for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
-            torch._dynamo.maybe_mark_dynamic(leaf, 0)
+        if first:  # a graph traced with N symbolic keeps it so: later calls need no marks
+            for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
+                torch._dynamo.maybe_mark_dynamic(leaf, 0)
         new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne, *totals)
         return (_rebuild(layout.state, new, state.batch_size), *totals)
