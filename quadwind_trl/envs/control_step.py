@@ -2,19 +2,22 @@
 
 :func:`held_control_step` is the pure function :class:`~quadwind_trl.envs.QuadWindEnv` runs
 ``TimingConfig.hold_control_steps`` times per env step. :class:`CompiledControlStep` runs it
-through ``torch.compile`` once per process for every env and batch size:
+through ``torch.compile``, one compiled function per process for every env:
 
-* one function for every env, its simulator and task passed in: dynamo guards on their
-  constants (the config's values, the tensors' shapes), not on an env instance, so a second env
-  of the same configuration reuses the first one's compiled step;
-* the batch dimension traced symbolic (``maybe_mark_dynamic``): a new ``N`` reuses the graph,
-  not a recompilation (``N = 1`` gets one graph of its own: torch specialises sizes 0 and 1).
-  The TensorDicts cross the compiled boundary as flat tuples of their leaves, rebuilt inside
-  around the leaves' symbolic batch size: a TensorDict's ``batch_size`` is a Python constant to
-  dynamo, which would pin ``N``;
+* its simulator and task are passed in: dynamo guards on their constants (the config's values,
+  the tensors' shapes), not on an env instance, so a second env of the same configuration and
+  batch size reuses the first one's compiled step;
+* static sizes by default (``QuadWindEnv(compile_step=True)``): one graph per configuration and
+  batch size, the kernels every compiled result was recorded with. With ``compile_step="dynamic"``
+  the batch dimension is traced symbolic (``maybe_mark_dynamic``): a new ``N`` reuses the graph
+  (``N = 1`` gets one of its own: torch specialises sizes 0 and 1). The TensorDicts cross the
+  compiled boundary as flat tuples of their leaves, rebuilt inside around the leaves' batch
+  size: a TensorDict's ``batch_size`` is a Python constant to dynamo, which would pin ``N``;
+* what is traced is the graph the step has always had: the eager step's shortcuts (numbers made
+  tensors, fused ops) are taken only eagerly (:mod:`.operands`);
 * inductor's caches (the FX graph and AOTAutograd caches, on by default) keep the compiled code
   on disk, in :func:`compile_cache_dir`: a later process on the same machine traces the step
-  again (dynamo's part, about 20 s of CPU here) but compiles no C++ (minutes).
+  again (dynamo's part) but compiles no C++ (minutes).
 """
 from __future__ import annotations
 
@@ -27,15 +30,17 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
+from .operands import operands
 from .tensordicts import entry, unchecked
 
 if TYPE_CHECKING:
     from .simulator import QuadSimulator
     from .task import Task
 
-# Dynamo keeps one compiled step per configuration (and one for N = 1) and, past
-# ``recompile_limit`` entries (torch's default: 8), runs the step eagerly for every later one,
-# silently: an ablation of three sweeps x five controllers in one process has more
+# Dynamo keeps one compiled step per configuration and batch size (static; dynamic: per
+# configuration, and one for N = 1) and, past ``recompile_limit`` entries (torch's default: 8),
+# runs the step eagerly for every later one, silently: an ablation of three sweeps x five
+# controllers in one process has more
 COMPILED_STEPS_PER_PROCESS = 64
 
 
@@ -66,7 +71,7 @@ def held_control_step(sim: QuadSimulator, task: Task, params: TensorDict, state:
     new_reward = task.step_reward(params, state, new)
     return (
         new.where(running.reshape(-1), state) if merge else new,
-        reward + torch.where(running, new_reward, sim.physics_constants.zero),
+        reward + torch.where(running, new_reward, operands(sim.physics_constants.zero, 0.0)),
         steps + running.to(steps.dtype),
         torch.where(running, new_terminated, terminated),
         torch.where(running, new_truncated, truncated),
@@ -113,14 +118,17 @@ def _flat_held_control_step(sim: QuadSimulator, task: Task, layout: _Layout, par
 
 
 @functools.cache
-def _compiled_function() -> Callable:
-    """The process's one compiled :func:`_flat_held_control_step` (compiled at its first call,
-    not here), with dynamo's recompile limit raised to :data:`COMPILED_STEPS_PER_PROCESS`."""
+def _compiled_function(dynamic: bool) -> Callable:
+    """The process's compiled :func:`_flat_held_control_step` of one kind, static sizes or a
+    symbolic batch dimension (compiled at its first call, not here), with dynamo's recompile
+    limit raised to :data:`COMPILED_STEPS_PER_PROCESS`. Static: ``dynamic=False``, no size ever
+    made symbolic (dynamo's default would make ``N`` symbolic at an env's second batch size,
+    and kernels of symbolic sizes are other kernels)."""
     import torch._dynamo
 
     cfg = torch._dynamo.config
     cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_STEPS_PER_PROCESS)
-    return torch.compile(_flat_held_control_step)
+    return torch.compile(_flat_held_control_step, dynamic=None if dynamic else False)
 
 
 def _distinct(leaves: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
@@ -138,11 +146,12 @@ def _distinct(leaves: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
 
 class CompiledControlStep:
     """:func:`held_control_step` of ``sim`` and ``task`` through the process's compiled step
-    (module docstring); called as the eager one, without ``sim``, ``task`` and ``merge``."""
+    (module docstring); called as the eager one, without ``sim``, ``task`` and ``merge``.
+    ``dynamic``: the batch dimension symbolic (one graph for every ``N``), else static sizes."""
 
-    def __init__(self, sim: QuadSimulator, task: Task):
-        self.sim, self.task = sim, task
-        self._function = _compiled_function()
+    def __init__(self, sim: QuadSimulator, task: Task, dynamic: bool = False):
+        self.sim, self.task, self.dynamic = sim, task, dynamic
+        self._function = _compiled_function(dynamic)
         self._layout: _Layout | None = None
 
     def __call__(self, params: TensorDict, state: TensorDict, action: Tensor, wind_ne: Tensor | None,
@@ -154,7 +163,7 @@ class CompiledControlStep:
         leaves = _distinct((*(entry(params, *k) for k in layout.params), *(entry(state, *k) for k in layout.state)))
         params_leaves, state_leaves = leaves[:len(layout.params)], leaves[len(layout.params):]
         totals = (reward, steps, terminated, truncated)
-        if first:  # a graph traced with N symbolic keeps it so: later calls need no marks
+        if first and self.dynamic:  # a graph traced with N symbolic keeps it so: later calls need no marks
             for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
                 torch._dynamo.maybe_mark_dynamic(leaf, 0)
         new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne, *totals)

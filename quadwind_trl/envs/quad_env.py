@@ -93,6 +93,11 @@ def _ordinary(value):
     return value.clone() if value.is_inference() or value._is_view() else value
 
 
+# QuadWindEnv(compile_step=...): eager, compiled with static sizes (True is "static"), or compiled
+# with the batch dimension symbolic
+COMPILE_STEP_CHOICES = (False, True, "static", "dynamic")
+
+
 class QuadWindEnv(EnvBase):
     """A batch of quadrotors flying reference trajectories through wind and turbulence.
 
@@ -134,6 +139,12 @@ class QuadWindEnv(EnvBase):
     ``RewardConfig.crash_tilt_deg``, non-finite state: reward ``-100``) and are truncated at the
     trajectory's end; ``task=`` replaces reward and termination (:mod:`quadwind_trl.envs.task`).
 
+    ``compile_step``: ``False`` runs each control step eagerly; ``True`` (or ``"static"``)
+    through ``torch.compile`` with static sizes, the step every compiled result was recorded
+    with (one compilation per configuration and batch size, kept on disk between processes);
+    ``"dynamic"`` with the batch dimension symbolic, one compilation for every batch size
+    (:mod:`quadwind_trl.envs.control_step`).
+
     The simulator's per-episode ``params`` and dynamic ``state`` (TensorDicts, keys in
     :mod:`quadwind_trl.envs.simulator`) are ``env.params`` and ``env.state``.
     """
@@ -148,7 +159,7 @@ class QuadWindEnv(EnvBase):
         device: torch.device | str | None = None,
         scenario_sampler: ScenarioSampler | None = None,
         seed: int = 0,
-        compile_step: bool = False,
+        compile_step: bool | str = False,
         task: Task | None = None,
         first_row: int = 0,
         controller: BaseController | None = None,
@@ -170,14 +181,16 @@ class QuadWindEnv(EnvBase):
             if missing:
                 raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
         self.task = task if task is not None else TrackingTask(self.config, self.device)
-        self._advance = (CompiledControlStep(self.sim, self.task) if compile_step
+        if compile_step not in COMPILE_STEP_CHOICES:
+            raise ValueError(f"QuadWindEnv.compile_step={compile_step!r}; allowed: {', '.join(map(repr, COMPILE_STEP_CHOICES))}")
+        self._advance = (CompiledControlStep(self.sim, self.task, dynamic=compile_step == "dynamic") if compile_step
                          else functools.partial(held_control_step, self.sim, self.task))
         # a decision's first control step starts with no row ended, so its merge would select the
         # whole new state: eagerly that is a select per state leaf, skipped; compiled, the merge
         # costs nothing and one graph serves every control step of the hold
         self._first_advance = self._advance if compile_step else functools.partial(
             held_control_step, self.sim, self.task, merge=False)
-        self._compiled = compile_step
+        self._compiled = bool(compile_step)
         # a decision's running totals (reward sum, control steps, terminated, truncated) start
         # from these: made once, as a step only makes new tensors from them
         n, dev = self.batch_size[0], self.device
