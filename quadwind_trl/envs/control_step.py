@@ -46,8 +46,8 @@ COMPILED_STEPS_PER_PROCESS = 64
 
 def compile_cache_dir() -> Path:
     """Where compiled steps are kept between processes: inductor's cache folder, the environment
-    variable ``TORCHINDUCTOR_CACHE_DIR``, by default ``<temp dir>/torchinductor_<user>``
-    (``/tmp/torchinductor_<user>`` on Linux: emptied at a reboot). Set it before starting Python
+    variable ``TORCHINDUCTOR_CACHE_DIR``, by default ``torchinductor_<user>`` in the system's
+    temporary folder (on Linux emptied at a reboot). Set it before starting Python
     to move the cache: torch writes its default into the variable the first time it looks, and
     importing torchrl already does."""
     from torch._inductor.runtime.cache_dir_utils import cache_dir
