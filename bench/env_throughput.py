@@ -9,15 +9,17 @@ parseable line::
 
     env_throughput N=4096 compile=True atmosphere=full sensors=True threads=1 workers=1 hold=1
         episode_s=200 resets_per_env_step=0.205 control_steps_per_s=... steady_control_steps_per_s=...
-        steady_ms_per_control_step=... aten_calls_per_control_step=... partial_reset_ms=...
-        partial_reset_in_control_steps=... peak_rss_mb=... load_1min=...
+        steady_ms_per_control_step=... steady_cpu_ms_per_control_step=... aten_calls_per_control_step=...
+        partial_reset_ms=... partial_reset_in_control_steps=... peak_rss_mb=... load_1min=...
 
 ``control_steps_per_s`` is what a user's rollout gets: steps through ``step_and_maybe_reset`` with
 episodes ending at the rate a batch of de-synchronised ``--episode-s`` episodes has (``N /
 (episode_s x 100 Hz)`` rows per control step; a bench run is far shorter than one episode, so rows
 are ended by marking them done, cycling through the batch). ``steady_control_steps_per_s`` is the
 same loop with no episode ending, ``steady_ms_per_control_step`` its time per control step of all
-N rows, and ``aten_calls_per_control_step`` the ATen operators it calls per control step
+N rows, ``steady_cpu_ms_per_control_step`` the same in this process's CPU time (on a busy
+machine the steadier figure: other processes lengthen the wall time, not this one's CPU time),
+and ``aten_calls_per_control_step`` the ATen operators it calls per control step
 (``torch.profiler``, outside the timed loops; one process only). ``partial_reset_ms`` is one
 ``env.reset`` of a single row (``"_reset"`` mask), ``partial_reset_in_control_steps`` the same in
 control steps of the steady loop.
@@ -134,11 +136,12 @@ def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds:
     resets_per_step = n * hold / (episode_s * CONTROL_HZ)  # rows ending per env step
     _, td = _rollout(env, td, 3, 0.0)  # warm-up (and compilation)
     # steady: no episode ends
-    steps, elapsed = 0, 0.0
+    steps, elapsed, cpu_start = 0, 0.0, time.process_time()
     while elapsed < seconds:
         dt, td = _rollout(env, td, 10, 0.0)
         elapsed, steps = elapsed + dt, steps + 10
     steady = steps * hold * n / elapsed
+    steady_cpu_s = (time.process_time() - cpu_start) / (steps * hold)
     aten_calls, td = aten_calls_per_control_step(env, td) if workers == 1 else (None, td)
     # one partial reset of a single row, as step_and_maybe_reset issues it
     reset_times = []
@@ -164,6 +167,7 @@ def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds:
         "control_steps_per_s": round(steps * hold * n / elapsed),
         "steady_control_steps_per_s": round(steady),
         "steady_ms_per_control_step": round(1e3 * n / steady, 3),  # all N rows
+        "steady_cpu_ms_per_control_step": round(1e3 * steady_cpu_s, 3),
         "aten_calls_per_control_step": None if aten_calls is None else round(aten_calls),
         "partial_reset_ms": round(1e3 * reset_s, 2),
         "partial_reset_in_control_steps": round(reset_s / (n / steady), 2),

@@ -476,21 +476,77 @@ def test_every_sensor_preset_builds_and_flies():
 
 @pytest.mark.long
 def test_compiled_step_matches_eager():
-    """The compiled step flies as the eager one. Its env is the one the horizontal replay record's
-    compiled flights use (tests/test_replay.py: the shipped horizontal policy's env on the quick
-    sweep's flights, 3 rows), so one compilation serves both: inductor caches the graph on disk
-    (this test took 56 s on a cold cache, 11 s warm, on a loaded machine), and this test, marked
-    long, is collected first, before the replay test."""
+    """The compiled step (static sizes, the default) flies as the eager one, and a second env of
+    the same configuration and batch size, with a partial reset, compiles nothing more. Its env
+    is the one the horizontal replay record's compiled flights use (tests/test_replay.py: the
+    shipped horizontal policy's env on the quick sweep's flights, 3 rows), so one compilation
+    serves both: inductor caches the graph on disk, and this test, marked long, is collected
+    first, before the replay test."""
+    from torch._dynamo.utils import counters
+
+    cfg = _replay_record_config()
+    sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
+                        turb_seed=torch.tensor([3, 4, 5]), sensor_seed=torch.tensor([5, 6, 7]))
+    eager = _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60)
+    compiled = _stepped(QuadWindEnv(cfg, batch_size=[3], compile_step=True), sc, 60)
+    _assert_flies_as(compiled, eager)
+    compilations = counters["frames"]["ok"]
+    _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[3], compile_step=True), 3),
+                     _with_partial_reset(QuadWindEnv(cfg, batch_size=[3]), 3))
+    assert counters["frames"]["ok"] == compilations
+
+
+@pytest.mark.slow
+def test_dynamic_compiled_step_matches_eager_at_every_size():
+    """compile_step="dynamic": the compiled step flies as the eager one at two batch sizes, and
+    the second size, a partial reset and a second env compile nothing more (one graph, its batch
+    dimension symbolic). Slow: a compilation of its own (minutes on two cores)."""
+    from torch._dynamo.utils import counters
+
+    cfg = _replay_record_config()
+    sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
+                        turb_seed=torch.tensor([3, 4, 5]), sensor_seed=torch.tensor([5, 6, 7]))
+    _assert_flies_as(_stepped(QuadWindEnv(cfg, batch_size=[3], compile_step="dynamic"), sc, 60),
+                     _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60))
+    compilations = counters["frames"]["ok"]
+    _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[5], compile_step="dynamic"), 5),
+                     _with_partial_reset(QuadWindEnv(cfg, batch_size=[5]), 5))
+    assert counters["frames"]["ok"] == compilations
+
+
+def test_compile_step_choices():
+    with pytest.raises(ValueError, match="compile_step"):
+        QuadWindEnv(EnvConfig(), batch_size=[2], compile_step="fast")
+
+
+def _replay_record_config() -> EnvConfig:
+    """The env of the horizontal replay record's compiled flights (the shipped horizontal
+    policy's, on the quick sweep's flights)."""
     from quadwind_trl.evaluation.ablation import policy_env_config
     from quadwind_trl.manifest import CHECKPOINT_DIR
     from quadwind_trl.quick import SWEEP_QUICK
     from quadwind_trl.rl.policy import load_policy
 
-    cfg = SWEEP_QUICK.config(policy_env_config(load_policy(CHECKPOINT_DIR / "policy_horizontal.pt")[1]))
-    sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
-                        turb_seed=torch.tensor([3, 4, 5]), sensor_seed=torch.tensor([5, 6, 7]))
-    eager = _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60)
-    compiled = _stepped(QuadWindEnv(cfg, batch_size=[3], compile_step=True), sc, 60)
+    return SWEEP_QUICK.config(policy_env_config(load_policy(CHECKPOINT_DIR / "policy_horizontal.pt")[1]))
+
+
+def _with_partial_reset(env: QuadWindEnv, n: int) -> TensorDict:
+    """``n`` rows flown 10 steps, rows 1 and 4 (of the first 5) restarted, 10 steps more under a
+    constant residual."""
+    more = make_scenarios(5, traj_id=[1, 7, 4, 2, 0], altitude_m=30.0, wind_speed_ref_m_s=6.0, turb_intensity=0.15,
+                          turb_seed=torch.arange(5), sensor_seed=torch.arange(5, 10))[:n]
+    first = _stepped(env, more, 10)
+    restart = torch.tensor([False, True, False, False, True])[:n].unsqueeze(-1)
+    td = env.reset(TensorDict({"_reset": restart}, batch_size=[n]), scenario=more)
+    record = []
+    for _ in range(10):
+        td["action"] = torch.full((n, 4), 0.2)
+        td = env.step(td)["next"]
+        record.append(td.select(MEAS_KEY, ("truth", "pos"), ("truth", "wind"), "step").clone())
+    return torch.cat((first, torch.stack(record, 1)), 1)
+
+
+def _assert_flies_as(compiled: TensorDict, eager: TensorDict) -> None:
     torch.testing.assert_close(compiled["truth", "pos"], eager["truth", "pos"], rtol=1e-5, atol=1e-4)
     torch.testing.assert_close(pack_channels(compiled[MEAS_KEY]), pack_channels(eager[MEAS_KEY]), rtol=1e-5, atol=1e-4)
 
@@ -520,12 +576,13 @@ def test_parallel_workers_fly_the_rows_of_one_env():
         workers.close()
 
 
-def test_a_compiled_env_lets_dynamo_keep_one_step_per_env():
-    """Dynamo keeps one compiled step per env instance; past its recompile limit it would step every
-    later env eagerly without a word, so a compiled env raises the limit (building one compiles nothing)."""
+def test_a_compiled_env_lets_dynamo_keep_one_step_per_configuration():
+    """Dynamo keeps one compiled step per env configuration and batch size; past its recompile limit it
+    would step every later one eagerly without a word, so a compiled env raises the limit (building
+    one compiles nothing)."""
     import torch._dynamo
 
-    from quadwind_trl.envs.quad_env import COMPILED_ENVS_PER_PROCESS
+    from quadwind_trl.envs.control_step import COMPILED_STEPS_PER_PROCESS
 
     QuadWindEnv(EnvConfig(), batch_size=[2], compile_step=True)
-    assert torch._dynamo.config.recompile_limit >= COMPILED_ENVS_PER_PROCESS
+    assert torch._dynamo.config.recompile_limit >= COMPILED_STEPS_PER_PROCESS

@@ -57,6 +57,7 @@ from torch import Tensor
 from ..config import TurbulenceConfig, WindProfileConfig
 from .counter_rng import hash_bits, hash_normal, hash_uniform
 from .rotations import quat_to_rotmat
+from .tensordicts import unchecked
 from .trajectories import fixed_altitude_mask
 
 VON_KARMAN_KE_L = 0.746834  # k_e L: peak wavenumber of the von Karman energy spectrum
@@ -337,7 +338,7 @@ class Atmosphere:
             total = mean + self._locally_scaled_gust(params, field_pos, mean, z)
         if self.wind.cap_applies_to == "total":
             total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
-        state = TensorDict(air_offset=state["air_offset"] + dt * mean, batch_size=state.batch_size)
+        state = unchecked(state.batch_size, dict(air_offset=state["air_offset"] + dt * mean))
         return mean, total, state
 
     def _locally_scaled_gust(self, params: TensorDict, field_pos: Tensor, mean: Tensor, z: Tensor) -> Tensor:

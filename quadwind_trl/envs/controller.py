@@ -48,7 +48,8 @@ simulator's state TensorDict (``state["base"]``); nothing here holds state betwe
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
@@ -58,9 +59,22 @@ from typing import Protocol
 from tensordict import TensorDict
 
 from ..config import GRAVITY_M_S2, ControllerConfig, VehicleConfig
-from .rotations import matmul, matvec, vee
+from .operands import operands
+from .rotations import matmul, matvec, norm, vee
+from .tensordicts import unchecked
 from .trajectories.library import Reference
 from .vehicle import VehicleParams, drag_force_body
+
+
+class PDOperands(NamedTuple):
+    """The numbers :func:`pd_control` combines with tensors: 0-dim float32 tensors on the gains'
+    device for the eager step, Python numbers for a traced one (:mod:`.operands`)."""
+
+    gravity: Tensor | float
+    tan_max_tilt: Tensor | float
+    mass: Tensor | float
+    one: Tensor | float
+    half: Tensor | float
 
 
 @dataclass
@@ -75,6 +89,12 @@ class ControllerParams:
     inertia: Tensor
     thrust_min: float
     thrust_max: float
+    numbers: PDOperands = field(init=False, repr=False)
+    operands: PDOperands = field(init=False, repr=False)
+
+    def __post_init__(self):
+        self.numbers = PDOperands(gravity=GRAVITY_M_S2, tan_max_tilt=self.tan_max_tilt, mass=self.mass, one=1.0, half=0.5)
+        self.operands = PDOperands(*(torch.tensor(v, dtype=torch.float32, device=self.kp.device) for v in self.numbers))
 
     @classmethod
     def from_config(
@@ -151,30 +171,32 @@ def pd_control(
     """The PD wrench for a batch; ``rot`` is the body-to-world rotation matrix ``[N, 3, 3]``,
     ``ref_yaw`` and ``ref_yaw_rate`` are ``[N, 1]``; ``acc_extra`` ``[N, 3]`` (m/s^2, world) is
     added to the outer loop's desired acceleration before the tilt limit (None: the paper's PD)."""
+    k = operands(p.operands, p.numbers)
     pos_err = torch.maximum(torch.minimum(pos - ref_pos, p.pos_error_limit), -p.pos_error_limit)
     acc_des = -p.kp * pos_err - p.kd * (vel - ref_vel) + ref_acc
     if acc_extra is not None:  # a config constant: the PD alone runs exactly the paper's ops
         acc_des = acc_des + acc_extra
-    acc_z = (acc_des[..., 2:] + GRAVITY_M_S2).clamp_min(0.05 * GRAVITY_M_S2)
+    acc_z = (acc_des[..., 2:] + k.gravity).clamp_min(0.05 * GRAVITY_M_S2)
     horiz = acc_des[..., :2]
-    horiz_norm = horiz.norm(dim=-1, keepdim=True)
-    horiz_max = acc_z * p.tan_max_tilt
+    horiz_norm = norm(horiz)
+    horiz_max = acc_z * k.tan_max_tilt
     tilt_saturated = horiz_norm > horiz_max
-    horiz = horiz * torch.where(tilt_saturated, horiz_max / horiz_norm.clamp_min(1e-9), 1.0)
-    force_des = p.mass * torch.cat((horiz, acc_z), -1)
+    horiz = horiz * torch.where(tilt_saturated, horiz_max / horiz_norm.clamp_min(1e-9), k.one)
+    force_des = k.mass * torch.cat((horiz, acc_z), -1)
 
     b3 = rot[..., :, 2]
     thrust = (force_des * b3).sum(-1, keepdim=True).clamp(p.thrust_min, p.thrust_max)
-    force_norm = force_des.norm(dim=-1, keepdim=True)
+    force_norm = norm(force_des)
     b3_des = force_des / force_norm
     heading = torch.cat((torch.cos(ref_yaw), torch.sin(ref_yaw), torch.zeros_like(ref_yaw)), -1)
     b2_des = torch.linalg.cross(b3_des, heading)
-    b2_des = b2_des / b2_des.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    b2_des = b2_des / norm(b2_des).clamp_min(1e-9)
     b1_des = torch.linalg.cross(b2_des, b3_des)
     rot_des = torch.stack((b1_des, b2_des, b3_des), -1)
 
     # Angular-velocity feedforward from the reference jerk (flatness), in the desired body frame.
-    h_w = (p.mass / force_norm) * (ref_jerk - (ref_jerk * b3_des).sum(-1, keepdim=True) * b3_des)
+    # m / |f| as 1 / |f| times m: what a Python number over a tensor computes
+    h_w = (force_norm.reciprocal() * k.mass) * (ref_jerk - (ref_jerk * b3_des).sum(-1, keepdim=True) * b3_des)
     omega_des = torch.cat(
         (
             -(h_w * b2_des).sum(-1, keepdim=True),
@@ -184,7 +206,7 @@ def pd_control(
         -1,
     )
     rel = matmul(rot.transpose(-1, -2), rot_des)
-    err_rot = 0.5 * vee(rel.transpose(-1, -2) - rel)
+    err_rot = k.half * vee(rel.transpose(-1, -2) - rel)
     err_rate = omega - matvec(rel, omega_des)
     torque = -p.k_att * err_rot - p.k_rate * err_rate + torch.linalg.cross(omega, p.inertia * omega)
 
@@ -289,7 +311,7 @@ class CascadeController:
             # on the ground before arming the accelerometer reads the ground's reaction: no estimate
             new["force_hat"] = torch.where(x.armed, force_hat, state["force_hat"])
             new["thrust_hat"] = thrust_hat
-        return TensorDict(new, batch_size=state.batch_size)
+        return unchecked(state.batch_size, new)
 
 
 def make_base_controller(cfg: ControllerConfig, vehicle: VehicleConfig, dt_s: float,

@@ -20,6 +20,7 @@ from torch import Tensor
 
 from ..config import GRAVITY_M_S2, NavigationConfig
 from .rotations import quat_from_euler, quat_to_rotmat, rotate
+from .tensordicts import unchecked
 
 
 @dataclass
@@ -42,8 +43,8 @@ def init_navigation(meas: TensorDict) -> TensorDict:
     filter's start, and the ``feedback="sensors"`` autopilot): GPS horizontal position, baro
     altitude, GPS velocity, and a zero barometer offset (its expected value)."""
     baro = meas["baro_alt"]
-    return TensorDict(pos=torch.cat((meas["gps_pos"][..., :2], baro), -1), vel=meas["gps_vel"].clone(),
-                      baro_offset=torch.zeros_like(baro), batch_size=meas.batch_size)
+    return unchecked(meas.batch_size, dict(pos=torch.cat((meas["gps_pos"][..., :2], baro), -1), vel=meas["gps_vel"].clone(),
+                                           baro_offset=torch.zeros_like(baro)))
 
 
 def update_navigation(
@@ -75,4 +76,4 @@ def update_navigation(
     else:
         pos_z = torch.where(baro_tick, pos_z + p.alt_gain * (baro - pos_z), pos_z)
     vel = torch.where(gps_tick, vel + p.vel_gain * (gps_vel - vel), vel)
-    return TensorDict(pos=torch.cat((pos_xy, pos_z), -1), vel=vel, baro_offset=offset, batch_size=nav.batch_size)
+    return unchecked(nav.batch_size, dict(pos=torch.cat((pos_xy, pos_z), -1), vel=vel, baro_offset=offset))

@@ -16,9 +16,11 @@ from ..keys import BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY
 from ..validation import check_action
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
+from .control_step import CompiledControlStep, held_control_step
 from .controller import BaseController
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
+from .tensordicts import entry
 from .trajectories import HORIZONTAL, trajectory_ids
 
 
@@ -79,21 +81,6 @@ def _leaf_keys(td: TensorDict) -> list[NestedKey]:
     return sorted(td.keys(True, True), key=lambda k: (k,) if isinstance(k, str) else k)
 
 
-# Dynamo caches one compiled step per env instance (its guards hold the instance), and after
-# ``recompile_limit`` entries (torch's default: 8) it runs that code eagerly for every later
-# instance, silently: an ablation of three sweeps x five controllers, or a benchmark training
-# several runs in one process, then stepped its later envs ~6x slower (bench/time_to_policy.py).
-COMPILED_ENVS_PER_PROCESS = 64
-
-
-def _allow_compiled_envs() -> None:
-    """Raise dynamo's per-function recompile limit to :data:`COMPILED_ENVS_PER_PROCESS` (never lower it)."""
-    import torch._dynamo
-
-    cfg = torch._dynamo.config
-    cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_ENVS_PER_PROCESS)
-
-
 def _ordinary(value):
     """``value`` (a tensor, TensorDict or tuple of them) with every tensor made in inference mode,
     or viewing one made outside it there, copied into an ordinary tensor (the same values and
@@ -104,6 +91,11 @@ def _ordinary(value):
         return TensorDict._new_unsafe({k: _ordinary(v) for k, v in value.items()}, batch_size=value.batch_size,
                                       device=value.device)
     return value.clone() if value.is_inference() or value._is_view() else value
+
+
+# QuadWindEnv(compile_step=...): eager, compiled with static sizes (True is "static"), or compiled
+# with the batch dimension symbolic
+COMPILE_STEP_CHOICES = (False, True, "static", "dynamic")
 
 
 class QuadWindEnv(EnvBase):
@@ -147,6 +139,12 @@ class QuadWindEnv(EnvBase):
     ``RewardConfig.crash_tilt_deg``, non-finite state: reward ``-100``) and are truncated at the
     trajectory's end; ``task=`` replaces reward and termination (:mod:`quadwind_trl.envs.task`).
 
+    ``compile_step``: ``False`` runs each control step eagerly; ``True`` (or ``"static"``)
+    through ``torch.compile`` with static sizes, the step every compiled result was recorded
+    with (one compilation per configuration and batch size, kept on disk between processes);
+    ``"dynamic"`` with the batch dimension symbolic, one compilation for every batch size
+    (:mod:`quadwind_trl.envs.control_step`).
+
     The simulator's per-episode ``params`` and dynamic ``state`` (TensorDicts, keys in
     :mod:`quadwind_trl.envs.simulator`) are ``env.params`` and ``env.state``.
     """
@@ -161,7 +159,7 @@ class QuadWindEnv(EnvBase):
         device: torch.device | str | None = None,
         scenario_sampler: ScenarioSampler | None = None,
         seed: int = 0,
-        compile_step: bool = False,
+        compile_step: bool | str = False,
         task: Task | None = None,
         first_row: int = 0,
         controller: BaseController | None = None,
@@ -182,15 +180,22 @@ class QuadWindEnv(EnvBase):
             missing = [m for m in ("step_reward", "done", "decision_reward") if not callable(getattr(task, m, None))]
             if missing:
                 raise TypeError(f"task={type(task).__name__} lacks {missing}: a task needs the methods of envs.task.Task")
-        self.task = task if task is not None else TrackingTask(self.config)
-        if compile_step:
-            _allow_compiled_envs()
-        self._advance = torch.compile(self._held_control_step, dynamic=False) if compile_step else self._held_control_step
+        self.task = task if task is not None else TrackingTask(self.config, self.device)
+        if compile_step not in COMPILE_STEP_CHOICES:
+            raise ValueError(f"QuadWindEnv.compile_step={compile_step!r}; allowed: {', '.join(map(repr, COMPILE_STEP_CHOICES))}")
+        self._advance = (CompiledControlStep(self.sim, self.task, dynamic=compile_step == "dynamic") if compile_step
+                         else functools.partial(held_control_step, self.sim, self.task))
         # a decision's first control step starts with no row ended, so its merge would select the
         # whole new state: eagerly that is a select per state leaf, skipped; compiled, the merge
         # costs nothing and one graph serves every control step of the hold
-        self._first_advance = self._advance if compile_step else functools.partial(self._held_control_step, merge=False)
-        self._compiled = compile_step
+        self._first_advance = self._advance if compile_step else functools.partial(
+            held_control_step, self.sim, self.task, merge=False)
+        self._compiled = bool(compile_step)
+        # a decision's running totals (reward sum, control steps, terminated, truncated) start
+        # from these: made once, as a step only makes new tensors from them
+        n, dev = self.batch_size[0], self.device
+        flag = lambda: torch.zeros(n, 1, dtype=torch.bool, device=dev)  # noqa: E731
+        self._no_totals = (torch.zeros(n, 1, device=dev), torch.zeros(n, 1, device=dev), flag(), flag())
         self.params: TensorDict | None = None
         self.state: TensorDict | None = None
         self._make_specs()
@@ -246,32 +251,9 @@ class QuadWindEnv(EnvBase):
         out.update(self.full_done_spec.zero())
         return out
 
-    def _held_control_step(self, params: TensorDict, state: TensorDict, action: torch.Tensor,
-                           wind_ne: torch.Tensor | None, reward: torch.Tensor, steps: torch.Tensor,
-                           terminated: torch.Tensor, truncated: torch.Tensor, merge: bool = True):
-        """One control step of a held action, with the task's view of it, merged branch-free into
-        the decision's running totals ``(state, reward sum, steps, terminated, truncated)``: a row
-        whose episode ended earlier in the hold keeps its state and totals. Step and merge are one
-        function so that, compiled, they are one graph (no eager merge of every state leaf per
-        control step); the params do not change within an episode and are not merged.
-        ``merge=False``: no row has ended (the decision's first control step), the new state is
-        every row's."""
-        running = ~(terminated | truncated)
-        new = self.sim.step(params, state, action, wind_ne)
-        new_terminated, new_truncated = self.task.done(params, new)
-        new_reward = self.task.step_reward(params, state, new)
-        return (
-            new.where(running.reshape(-1), state) if merge else new,
-            reward + torch.where(running, new_reward, 0.0),
-            steps + running.to(steps.dtype),
-            torch.where(running, new_terminated, terminated),
-            torch.where(running, new_truncated, truncated),
-        )
-
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action", None)
         check_action(action, self.batch_size[0], 4)
-        n, dev = self.batch_size[0], self.device
         wind_ne = None
         if self.sim.controller.needs_wind:
             wind_ne = tensordict.get(BASE_WIND_KEY, None)
@@ -280,10 +262,7 @@ class QuadWindEnv(EnvBase):
                                f"{BASE_WIND_KEY!r} [N, 2] (north, east, m/s) beside the action "
                                "(transforms.BaseWindInput writes it from the wind estimate)")
         state = self.state
-        reward = torch.zeros(n, 1, device=dev)
-        steps = torch.zeros(n, 1, device=dev)
-        terminated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
-        truncated = torch.zeros(n, 1, dtype=torch.bool, device=dev)
+        reward, steps, terminated, truncated = self._no_totals
         # eagerly, the held steps run in inference mode: no autograd bookkeeping per op (a fifth of
         # the eager step at small batches); what they return leaves it as ordinary tensors. Not
         # for an action that asks for gradients through the simulator
@@ -296,30 +275,28 @@ class QuadWindEnv(EnvBase):
         if inference:
             state, reward, steps, terminated, truncated = _ordinary((state, reward, steps, terminated, truncated))
         self.state = state
-        out = self._observation(state)
-        out.set("reward", self.task.decision_reward(reward / steps, terminated))
-        out.set("terminated", terminated)
-        out.set("truncated", truncated)
-        out.set("done", terminated | truncated)
-        return out
+        return self._observation(state, reward=self.task.decision_reward(reward / steps, terminated),
+                                 terminated=terminated, truncated=truncated, done=terminated | truncated)
 
     # --- helpers --------------------------------------------------------------------------------
 
-    def _observation(self, s: TensorDict) -> TensorDict:
+    def _observation(self, s: TensorDict, **extra: torch.Tensor) -> TensorDict:
+        """The observation of state ``s``, with the entries ``extra`` (a step's reward and flags)."""
         entries = {
-            MEAS_KEY: dict(s["sensors", MEAS_KEY].items()),
-            "pos_error": s["nav", "pos"] - s["ref", "pos"],
-            "tilt_saturated": s["control", "tilt_saturated"],
-            "step": s["step"].unsqueeze(-1),
+            MEAS_KEY: dict(entry(s, "sensors", MEAS_KEY).items()),
+            "pos_error": entry(s, "nav", "pos") - entry(s, "ref", "pos"),
+            "tilt_saturated": entry(s, "control", "tilt_saturated"),
+            "step": entry(s, "step").unsqueeze(-1),
         }
         for key, (source, _) in _STATE_VIEWS.items():
             *parents, name = (key,) if isinstance(key, str) else key
             node = entries
             for parent in parents:
                 node = node.setdefault(parent, {})
-            node[name] = s[source]
+            node[name] = entry(s, *source)
         if self.config.residual.monitor is not None:
-            entries[MONITOR_KEY] = s["control", "monitor_left"] > 0
+            entries[MONITOR_KEY] = entry(s, "control", "monitor_left") > 0
+        entries.update(extra)
         # without the constructor's per-entry checks (they cost more than the step's arithmetic at
         # small batches): every entry is the simulator's, of batch [N] on this env's device
         return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=self.device)

@@ -7,11 +7,15 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from .operands import operands
+
 
 class _Tables(NamedTuple):
     """Index and sign tables that let :func:`quat_mul` and :func:`quat_to_rotmat` evaluate their
     textbook expressions four or nine entries per operation, with the same roundings (``a - b``
-    is ``a + (-1) b`` and ``2 s`` is ``s + s``, exactly): a dozen eager ops instead of thirty."""
+    is ``a + (-1) b`` and ``2 s`` is ``s + s``, exactly): a dozen eager ops instead of thirty;
+    and the numbers :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for
+    the eager step (:mod:`.operands`)."""
 
     mul_index: Tensor  # quat_mul: terms 1-3 of each component in the outer product a b^T
     mul_sign: Tensor
@@ -20,6 +24,8 @@ class _Tables(NamedTuple):
     rotmat_sign: Tensor
     diagonal: Tensor
     one: Tensor
+    sinc_series_below: Tensor  # quat_integrate: the angle below which sin(x)/x is its Taylor series
+    six: Tensor
 
 
 _TABLES: dict[tuple[torch.device, torch.dtype], _Tables] = {}
@@ -42,6 +48,8 @@ def _tables(device: torch.device, dtype: torch.dtype) -> _Tables:
             rotmat_sign=sign([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0]),
             diagonal=index([True, False, False, False, True, False, False, False, True]),
             one=sign(1.0),
+            sinc_series_below=sign(1e-4),
+            six=sign(6.0),
         )
     return _TABLES[key]
 
@@ -70,7 +78,7 @@ def body_z_vertical(q: Tensor) -> Tensor:
     xy = q[..., 1:3]
     squares = xy * xy
     half = squares[..., :1] + squares[..., 1:]
-    return 1.0 - (half + half)
+    return operands(_tables(q.device, q.dtype).one, 1.0) - (half + half)
 
 
 def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
@@ -112,13 +120,15 @@ def quat_integrate(q: Tensor, omega_body: Tensor, half_dt: Tensor | float) -> Te
     """Rotate ``q`` by a constant body rate over ``2 half_dt`` (exact exponential map),
     renormalised. ``half_dt``: half the step, a number or (for an eager caller that steps often:
     no conversion per use) a 0-dim tensor of the rate's dtype."""
+    t = _tables(q.device, q.dtype)
+    series_below, one, six = operands((t.sinc_series_below, t.one, t.six), (1e-4, 1.0, 6.0))
     half_angle = half_dt * omega_body
-    theta = torch.linalg.vector_norm(half_angle, dim=-1, keepdim=True)
+    theta = norm(half_angle)
     # sin(theta)/theta, with its Taylor series where theta is tiny (no division by zero)
-    sinc = torch.where(theta < 1e-4, 1.0 - theta * theta / 6.0, torch.sin(theta) / theta.clamp_min(1e-12))
+    sinc = torch.where(theta < series_below, one - theta * theta / six, torch.sin(theta) / theta.clamp_min(1e-12))
     dq = torch.cat((torch.cos(theta), sinc * half_angle), -1)
     out = quat_mul(q, dq)
-    return out / torch.linalg.vector_norm(out, dim=-1, keepdim=True)
+    return out / norm(out)
 
 
 # Small products as broadcast multiply-and-sum rather than ``@``: as fast for 3x3 and 4x4, fused
@@ -139,6 +149,12 @@ def vecmat(v: Tensor, m: Tensor) -> Tensor:
 def matmul(a: Tensor, b: Tensor) -> Tensor:
     """``a @ b`` for batches of small matrices, batch-size independent."""
     return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
+
+
+def norm(v: Tensor) -> Tensor:
+    """``v.norm(dim=-1, keepdim=True)``: the kernel ``Tensor.norm`` calls, without its Python
+    dispatch (as long as an eager op on a small batch)."""
+    return torch.linalg.vector_norm(v, dim=-1, keepdim=True)
 
 
 def rotate(r: Tensor, v: Tensor) -> Tensor:

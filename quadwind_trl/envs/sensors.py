@@ -47,6 +47,7 @@ from torch import Tensor
 
 from ..config import SensorChannelConfig, SensorConfig
 from .counter_rng import hash_normal, keyed_normal, stream_key
+from .tensordicts import unchecked
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ def pack_channels(entries: TensorDict | dict[str, Tensor], names: tuple[str, ...
 def unpack_channels(packed: Tensor, names: tuple[str, ...] = SENSOR_NAMES) -> TensorDict:
     """Named entries (views of ``packed``) of channels packed in the order of ``names``."""
     parts = packed.split([_BY_NAME[name].width for name in names], -1)
-    return TensorDict(dict(zip(names, parts)), batch_size=packed.shape[:-1])
+    return unchecked(packed.shape[:-1], dict(zip(names, parts)))
 
 
 def _gauss_markov_step(ch: SensorChannelConfig, h_s: float) -> tuple[float, float]:
@@ -200,9 +201,8 @@ class SensorSuite:
         episode's first measurement)."""
         truth_packed = pack_channels(truth)
         if not self.cfg.enabled:
-            return unpack_channels(truth_packed), TensorDict(
-                bias=state["bias"], held=state["held"], imu_mean=truth_packed[..., _IMU], batch_size=state.batch_size
-            )
+            return unpack_channels(truth_packed), unchecked(
+                state.batch_size, dict(bias=state["bias"], held=state["held"], imu_mean=truth_packed[..., _IMU]))
         tick = (step.unsqueeze(-1) % self.period) == 0
         if force is not None:
             tick = tick | force
@@ -228,4 +228,4 @@ class SensorSuite:
         sample = torch.where(self.wrapped, torch.remainder(sample + math.pi, 2.0 * math.pi) - math.pi, sample)
         held = torch.where(tick, sample, state["held"])
         imu_mean = held[..., _IMU] if imu_sum is None else (imu_sum + held[..., _IMU]) / self.imu_samples_per_step
-        return unpack_channels(held), TensorDict(bias=bias, held=held, imu_mean=imu_mean, batch_size=state.batch_size)
+        return unpack_channels(held), unchecked(state.batch_size, dict(bias=bias, held=held, imu_mean=imu_mean))

@@ -48,9 +48,11 @@ from .atmosphere import Atmosphere
 from .controller import BaseController, ControlInputs, make_base_controller
 from .monitor import MonitorParams, monitor_gate
 from .navigation import NavigationParams, init_navigation, update_navigation
+from .operands import operands
 from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
+from .tensordicts import entry, unchecked
 from .trajectories import TrajectoryLibrary, registered_patterns
 from .vehicle import RigidBody, VehicleParams, allocate, physics_step, step_constants
 
@@ -90,6 +92,10 @@ class QuadSimulator:
         self.navigation = NavigationParams.from_config(c.navigation)
         self.action_scale = torch.tensor(c.residual.action_scale, device=dev)
         self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
+        # the residual smoother's weights and the unarmed command: Python numbers for a traced
+        # step, tensors for the eager one (operands.py)
+        self._numbers = (c.residual.smoothing, 1.0 - c.residual.smoothing, 0.0)
+        self._operands = (*(torch.tensor(v, device=dev) for v in self._numbers[:2]), self.physics_constants.zero)
         self.monitor = (None if c.residual.monitor is None else
                         MonitorParams.from_config(c.residual.monitor, c.controller, self.vehicle, c.timing.control_dt_s))
         self.control_dt = c.timing.control_dt_s
@@ -162,23 +168,23 @@ class QuadSimulator:
         """The state one control step on, every row under residual ``action`` in ``[-1, 1]^4``;
         ``wind_ne`` ``[N, 2]`` (north, east, m/s): the wind estimate a wind feed-forward base
         controller flies the next instant's law on (held over the step, as the action is)."""
-        r = self.cfg.residual
-        ff_prev = state["control", "ff"]
+        ff_prev = entry(state, "control", "ff")
         target = action.clamp(-1.0, 1.0) * self.action_scale
-        ff = r.smoothing * ff_prev + (1.0 - r.smoothing) * target
+        smoothing, one_minus_smoothing, zero = operands(self._operands, self._numbers)
+        ff = smoothing * ff_prev + one_minus_smoothing * target
         ff = ff_prev + torch.maximum(torch.minimum(ff - ff_prev, self.slew_limit), -self.slew_limit)
         monitor = {}
         if self.monitor is not None:  # a config constant: off, the step runs the same ops as before the monitor
-            height_error = state["nav", "pos"][..., 2:] - state["ref", "pos"][..., 2:]
-            ff, monitor["monitor_left"] = monitor_gate(ff, state["control", "pd_wrench"][..., :1] + ff[..., :1],
+            height_error = entry(state, "nav", "pos")[..., 2:] - entry(state, "ref", "pos")[..., 2:]
+            ff, monitor["monitor_left"] = monitor_gate(ff, entry(state, "control", "pd_wrench")[..., :1] + ff[..., :1],
                                                        self._cos_tilt(state), height_error,
-                                                       state["control", "monitor_left"], self.monitor)
-        armed = (state["step"] >= self.arm_step).unsqueeze(-1)
-        cmd = torch.where(armed, state["control", "pd_wrench"] + ff, 0.0)  # what is applied: motors off before arming
-        rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), 0.0)
+                                                       entry(state, "control", "monitor_left"), self.monitor)
+        armed = (entry(state, "step") >= self.arm_step).unsqueeze(-1)
+        cmd = torch.where(armed, entry(state, "control", "pd_wrench") + ff, zero)  # what is applied: motors off before arming
+        rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), zero)
 
-        body = RigidBody(*(state["body", k] for k in RigidBody._fields))
-        wind_total = state["wind", "total"]
+        body = RigidBody(*(entry(state, "body", k) for k in RigidBody._fields))
+        wind_total = entry(state, "wind", "total")
         imu_sub = []  # what the IMU instruments read at their intermediate sample instants
         for i in range(1, self.cfg.timing.control_substeps + 1):
             body, specific_force = physics_step(body, rotor_cmd, wind_total, self.vehicle, self.cfg.timing.physics_dt_s,
@@ -187,16 +193,16 @@ class QuadSimulator:
                 imu_sub.append((body.omega, specific_force))
         n = state.batch_size
         finite = torch.isfinite(torch.cat((body.pos, body.vel, body.quat, body.omega), -1)).all(-1, keepdim=True)
-        imu_truth_sub = None if not imu_sub else _tensordict(torch.Size([*n, len(imu_sub)]), {
+        imu_truth_sub = None if not imu_sub else unchecked(torch.Size([*n, len(imu_sub)]), {
             "gyro": torch.stack([gyro for gyro, _ in imu_sub], 1), "accel": torch.stack([accel for _, accel in imu_sub], 1)})
-        new = _tensordict(n, {
-            "step": state["step"] + 1,
-            "body": _tensordict(n, {**body._asdict(), "specific_force": specific_force}),  # initial()'s key order
-            "wind": state["wind"],
-            "sensors": state["sensors"],
-            "control": _tensordict(n, dict(ff=ff, cmd=cmd, **monitor)),  # initial()'s key order
-            **({"base": state["base"]} if "base" in state.keys() else {}),
-            "nav": state["nav"],
+        new = unchecked(n, {
+            "step": entry(state, "step") + 1,
+            "body": unchecked(n, {**body._asdict(), "specific_force": specific_force}),  # initial()'s key order
+            "wind": entry(state, "wind"),
+            "sensors": entry(state, "sensors"),
+            "control": unchecked(n, dict(ff=ff, cmd=cmd, **monitor)),  # initial()'s key order
+            **({"base": entry(state, "base")} if "base" in state.keys() else {}),
+            "nav": entry(state, "nav"),
         })
         new = self._observe_instant(params, new, first=False, imu_truth_sub=imu_truth_sub, wind_ne=wind_ne)
         new["finite"] = finite
@@ -221,31 +227,35 @@ class QuadSimulator:
         """``state`` completed with the wind, reference, sensors, navigation and the base
         controller's wrench at its current step (``imu_truth_sub``: the IMU's true inputs at its
         samples inside the step just flown; ``wind_ne``: the base law's wind estimate)."""
-        body, step, sc = state["body"], state["step"], params["scenario"]
-        pos = body["pos"]
-        mean, total, wind_state = self.atmosphere.sample(params["wind"], state["wind"], pos, self.control_dt)
-        ref = self.trajectories.reference(sc["traj_id"], step, params["pattern_start"], sc["altitude_m"])
-        rot = quat_to_rotmat(body["quat"])
+        body, step, sc = entry(state, "body"), entry(state, "step"), entry(params, "scenario")
+        pos = entry(body, "pos")
+        mean, total, wind_state = self.atmosphere.sample(entry(params, "wind"), entry(state, "wind"), pos,
+                                                         self.control_dt)
+        ref = self.trajectories.reference(entry(sc, "traj_id"), step, entry(params, "pattern_start"),
+                                          entry(sc, "altitude_m"))
+        rot = quat_to_rotmat(entry(body, "quat"))
         euler = euler_from_rotmat(rot)
         # what each instrument would read without noise or bias
-        truth = TensorDict(gps_pos=pos, gps_vel=body["vel"], baro_alt=pos[..., 2:], attitude=euler,
-                           gyro=body["omega"], accel=body["specific_force"], batch_size=state.batch_size)
+        truth = unchecked(state.batch_size, dict(gps_pos=pos, gps_vel=entry(body, "vel"), baro_alt=pos[..., 2:],
+                                                 attitude=euler, gyro=entry(body, "omega"),
+                                                 accel=entry(body, "specific_force")))
         force = torch.ones_like(step, dtype=torch.bool).unsqueeze(-1) if first else None
-        meas, sensor_state = self.sensors.measure(params["sensors"], state["sensors"], truth, step, force=force,
-                                                  imu_truth_sub=imu_truth_sub)
+        meas, sensor_state = self.sensors.measure(entry(params, "sensors"), entry(state, "sensors"), truth, step,
+                                                  force=force, imu_truth_sub=imu_truth_sub)
 
         feedback = self.cfg.controller.feedback
         if feedback == "truth":
-            nav = TensorDict(pos=pos, vel=body["vel"], baro_offset=torch.zeros_like(pos[..., 2:]), batch_size=state.batch_size)
-            nav_rot, nav_omega = rot, body["omega"]
+            nav = unchecked(state.batch_size, dict(pos=pos, vel=entry(body, "vel"),
+                                                   baro_offset=torch.zeros_like(pos[..., 2:])))
+            nav_rot, nav_omega = rot, entry(body, "omega")
         else:
             # the measured attitude as a rotation, once: the filter's prediction and the PD read it
-            nav_rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
+            nav_rot = quat_to_rotmat(quat_from_euler(*entry(meas, "attitude").unbind(-1)))
             if feedback == "sensors" or first:
                 nav = init_navigation(meas)
             else:
                 nav = update_navigation(
-                    state["nav"],
+                    entry(state, "nav"),
                     meas,
                     self.sensors.imu_mean(sensor_state, "accel"),
                     self.sensors.ticks(step, "gps_pos"),
@@ -254,33 +264,25 @@ class QuadSimulator:
                     self.control_dt,
                     rot=nav_rot,
                 )
-            nav_omega = meas["gyro"]
+            nav_omega = entry(meas, "gyro")
         # the accelerometer as the law's feedback reads it: the true specific force with truth feedback
-        specific_force = body["specific_force"] if feedback == "truth" else meas["accel"]
-        inputs = ControlInputs(pos=nav["pos"], vel=nav["vel"], rot=nav_rot, omega=nav_omega, ref=ref,
-                               specific_force=specific_force, thrust_applied=state["control", "cmd"][..., :1],
+        specific_force = entry(body, "specific_force") if feedback == "truth" else entry(meas, "accel")
+        inputs = ControlInputs(pos=entry(nav, "pos"), vel=entry(nav, "vel"), rot=nav_rot, omega=nav_omega, ref=ref,
+                               specific_force=specific_force, thrust_applied=entry(state, "control", "cmd")[..., :1],
                                wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first)
         pd, base = self.controller(inputs, state.get("base", None))
 
         n = state.batch_size
         out = dict(state.items())
-        out["wind"] = _tensordict(n, {**dict(wind_state.items()), "mean": mean, "total": total})
-        out["sensors"] = _tensordict(n, {**dict(sensor_state.items()), MEAS_KEY: meas})
+        out["wind"] = unchecked(n, {**dict(wind_state.items()), "mean": mean, "total": total})
+        out["sensors"] = unchecked(n, {**dict(sensor_state.items()), MEAS_KEY: meas})
         out["nav"] = nav
-        out["ref"] = _tensordict(n, dict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw))
-        out["control"] = _tensordict(n, {**dict(state["control"].items()), "pd_wrench": pd.wrench, "tilt_cmd": pd.tilt_cmd,
+        out["ref"] = unchecked(n, dict(pos=ref.pos, vel=ref.vel, acc=ref.acc, yaw=ref.yaw))
+        out["control"] = unchecked(n, {**dict(state["control"].items()), "pd_wrench": pd.wrench, "tilt_cmd": pd.tilt_cmd,
                                          "tilt_saturated": pd.tilt_saturated})
         if base is not None:
             out["base"] = base
-        return _tensordict(n, out)
-
-
-def _tensordict(batch_size: torch.Size, entries: dict) -> TensorDict:
-    """A TensorDict of the simulator's own entries (tensors and TensorDicts of batch
-    ``batch_size`` on its device), built without the constructor's per-entry checks: a step
-    builds a dozen, and at small batches the checks cost more than the arithmetic (compiled,
-    ``_new_unsafe`` is the constructor)."""
-    return TensorDict._new_unsafe(entries, batch_size=batch_size)
+        return unchecked(n, out)
 
 
 def _contiguous(td: TensorDict) -> TensorDict:
@@ -303,27 +305,27 @@ def _sanitize(state: TensorDict, broken: Tensor, zero: Tensor, level: Tensor) ->
     in the same step, on ``state["finite"]``). Branch-free: no host synchronisation in the step.
     ``zero``: a 0-dim zero of the state's dtype."""
     n = state.batch_size
-    body = state["body"]
-    fixes = {"pos": state["ref", "pos"], "pos_carry": zero, "vel": zero, "quat": level, "omega": zero, "specific_force": zero}
+    body = entry(state, "body")
+    fixes = {"pos": entry(state, "ref", "pos"), "pos_carry": zero, "vel": zero, "quat": level, "omega": zero, "specific_force": zero}
     out = dict(state.items())
-    out["body"] = _tensordict(n, {k: torch.where(broken, fixes[k], v) if k in fixes else v for k, v in body.items()})
+    out["body"] = unchecked(n, {k: torch.where(broken, fixes[k], v) if k in fixes else v for k, v in body.items()})
     # the measurements (a sub-tensordict of named entries), the wrenches and the wind are zeroed,
     # packed side by side: three ops, not three per entry
     zeroed = {"sensors": (MEAS_KEY,), "control": ("pd_wrench", "cmd", "ff"), "wind": ("total", "mean")}
     if "base" in state.keys():  # the base law's state restarts from zero in a parked row
         zeroed["base"] = tuple(state["base"].keys())
-    parts = [(group, key, entry) for group, keys in zeroed.items() for key in keys
-             for entry in (state[group, key].keys() if is_tensor_collection(state[group, key]) else (None,))]
-    leaves = [state[group, key] if entry is None else state[group, key, entry] for group, key, entry in parts]
+    groups = {group: dict(entry(state, group).items()) for group in zeroed}
+    parts = [(group, key, name) for group, keys in zeroed.items() for key in keys
+             for name in (groups[group][key].keys() if is_tensor_collection(groups[group][key]) else (None,))]
+    leaves = [groups[group][key] if name is None else entry(groups[group][key], name) for group, key, name in parts]
     packed = torch.where(broken, zero, torch.cat(leaves, -1).nan_to_num())
-    groups = {group: dict(state[group].items()) for group in zeroed}
     nested: dict[tuple[str, str], dict[str, Tensor]] = {}
-    for (group, key, entry), leaf in zip(parts, packed.split([leaf.shape[-1] for leaf in leaves], -1)):
-        if entry is None:
+    for (group, key, name), leaf in zip(parts, packed.split([leaf.shape[-1] for leaf in leaves], -1)):
+        if name is None:
             groups[group][key] = leaf
         else:
-            nested.setdefault((group, key), {})[entry] = leaf
+            nested.setdefault((group, key), {})[name] = leaf
     for (group, key), entries in nested.items():
-        groups[group][key] = _tensordict(n, entries)
-    out.update({group: _tensordict(n, entries) for group, entries in groups.items()})
-    return _tensordict(n, out)
+        groups[group][key] = unchecked(n, entries)
+    out.update({group: unchecked(n, entries) for group, entries in groups.items()})
+    return unchecked(n, out)

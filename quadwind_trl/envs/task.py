@@ -13,14 +13,16 @@ pure and branch-free (no host synchronisation: they run inside the held step and
 from __future__ import annotations
 
 import math
-from typing import Protocol
+from typing import NamedTuple, Protocol
 
 import torch
 from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import EnvConfig
-from .rotations import body_z_vertical
+from .operands import operands
+from .rotations import body_z_vertical, norm
+from .tensordicts import entry
 
 
 class Task(Protocol):
@@ -42,43 +44,70 @@ class TrackingTask:
     row whose physics went non-finite). Terminated: non-finite physics, tilt beyond
     ``crash_tilt_deg``, or ground contact later than ``takeoff_grace_s`` after arming (the
     climb's start). Truncated: the trajectory's end step. Per decision: the mean step reward plus
-    ``crash_penalty`` if the episode terminated.
+    ``crash_penalty`` if the episode terminated. ``device``: the env's, where the task's numbers
+    are made once as tensors for the eager step (None: Python numbers, the same results, slower
+    eagerly); a traced step combines the Python numbers (:mod:`.operands`).
     """
 
-    def __init__(self, config: EnvConfig):
+    def __init__(self, config: EnvConfig, device: torch.device | str | None = None):
         self.reward = reward = config.reward
         dt = config.timing.control_dt_s
         # ground contact ends an episode from this control step on (the arming step is the
         # trajectory library's: arm_time_s on the control clock)
         self.grace_steps = int(round(config.trajectories.arm_time_s / dt)) + int(round(reward.takeoff_grace_s / dt))
         self.cos_crash_tilt = math.cos(math.radians(reward.crash_tilt_deg))
+        self._numbers = _operands(self, None)
+        self._tensors = self._numbers if device is None else _operands(self, device)
 
     def step_reward(self, params: TensorDict, before: TensorDict, after: TensorDict) -> Tensor:
-        rw = self.reward
+        k = operands(self._tensors, self._numbers)
         err = after["body", "pos"] - after["ref", "pos"]
         ff, ff_prev = after["control", "ff"], before["control", "ff"]
         reward = (
-            rw.alive_bonus
-            - rw.w_xy * _norm(err[..., :2])
-            - rw.w_z * err[..., 2:].abs()
-            - rw.w_ff * _norm(ff)
-            - rw.w_dff * _norm(ff - ff_prev)
+            k.alive_bonus
+            - k.w_xy * norm(err[..., :2])
+            - k.w_z * err[..., 2:].abs()
+            - k.w_ff * norm(ff)
+            - k.w_dff * norm(ff - ff_prev)
         )
-        return torch.where(after["finite"], reward, 0.0)
+        return torch.where(after["finite"], reward, k.zero)
 
     def done(self, params: TensorDict, state: TensorDict) -> tuple[Tensor, Tensor]:
+        k = operands(self._tensors, self._numbers)
         pos = state["body", "pos"]
-        upright = body_z_vertical(state["body", "quat"]) > self.cos_crash_tilt
-        grounded = (pos[..., 2:] <= 0.0) & (state["step"] > self.grace_steps).unsqueeze(-1)
+        upright = body_z_vertical(state["body", "quat"]) > k.cos_crash_tilt
+        grounded = (pos[..., 2:] <= k.zero) & (state["step"] > k.grace_steps).unsqueeze(-1)
         terminated = ~state["finite"] | ~upright | grounded
         truncated = (state["step"] >= params["end_step"]).unsqueeze(-1)
         return terminated, truncated
 
     def decision_reward(self, mean_step_reward: Tensor, terminated: Tensor) -> Tensor:
-        return mean_step_reward + torch.where(terminated, self.reward.crash_penalty, 0.0)
+        k = operands(self._tensors, self._numbers)
+        return mean_step_reward + torch.where(terminated, k.crash_penalty, k.zero)
 
 
-def _norm(v: Tensor) -> Tensor:
-    """``v.norm(dim=-1, keepdim=True)``: the kernel ``Tensor.norm`` calls, without its Python
-    dispatch (as long as the rest of the step's eager op)."""
-    return torch.linalg.vector_norm(v, dim=-1, keepdim=True)
+class _Operands(NamedTuple):
+    """The numbers a :class:`TrackingTask` combines with the state."""
+
+    alive_bonus: Tensor | float
+    w_xy: Tensor | float
+    w_z: Tensor | float
+    w_ff: Tensor | float
+    w_dff: Tensor | float
+    crash_penalty: Tensor | float
+    zero: Tensor | float
+    cos_crash_tilt: Tensor | float
+    grace_steps: Tensor | int
+
+
+def _operands(task: TrackingTask, device: torch.device | str | None) -> _Operands:
+    """``task``'s numbers: Python numbers without ``device``, else 0-dim tensors on it (float32,
+    the step counter's int64): an eager op converts a Python number operand at every use
+    (``aten::_to_copy``), a tensor not at all, and the tensor holds the value that conversion
+    gives, so the results are the same bits."""
+    rw = task.reward
+    floats = (rw.alive_bonus, rw.w_xy, rw.w_z, rw.w_ff, rw.w_dff, rw.crash_penalty, 0.0, task.cos_crash_tilt)
+    if device is None:
+        return _Operands(*floats, task.grace_steps)
+    return _Operands(*(torch.tensor(v, dtype=torch.float32, device=device) for v in floats),
+                     torch.tensor(task.grace_steps, dtype=torch.int64, device=device))

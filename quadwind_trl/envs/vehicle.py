@@ -64,6 +64,7 @@ import torch
 from torch import Tensor
 
 from ..config import GRAVITY_M_S2, VehicleConfig
+from .operands import add_div, sub_div
 from .rotations import quat_integrate, quat_to_rotmat, rotate, rotate_inverse, vecmat
 
 
@@ -188,11 +189,12 @@ def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero |
         ct = ct_blade - o.inflow_ct * inflow
         speed = torch.sqrt(mu2 + inflow.square())
         # 2 x and 4 x as sums (exact, as the products are) and s / x as reciprocal times s (what
-        # a Python float over a tensor computes): no Python number operand in the loop
+        # a Python float over a tensor computes): no Python number operand in the loop; a - b / c
+        # and a + b / c one eager op each (operands.sub_div, add_div: the same bits)
         twice, cube = speed + speed, speed**3
-        residual = inflow - climb - ct / twice
-        slope = o.one + (twice + twice).reciprocal() * o.half_solidity_lift + ct * inflow / (cube + cube)
-        inflow = inflow - residual / slope
+        residual = sub_div(inflow - climb, ct, twice)
+        slope = add_div(o.one + (twice + twice).reciprocal() * o.half_solidity_lift, ct * inflow, cube + cube)
+        inflow = sub_div(inflow, residual, slope)
     # beyond zero thrust (inflow faster than the blades' pitch: windmill state) a fixed-pitch
     # propeller brakes rather than pulls; the model stops at zero thrust
     return ((ct_blade - o.inflow_ct * inflow) / o.static_ct).clamp_min(0.0)

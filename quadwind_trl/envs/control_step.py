@@ -1,0 +1,170 @@
+"""One control step of a held action with the task's view of it, eager or compiled.
+
+:func:`held_control_step` is the pure function :class:`~quadwind_trl.envs.QuadWindEnv` runs
+``TimingConfig.hold_control_steps`` times per env step. :class:`CompiledControlStep` runs it
+through ``torch.compile``, one compiled function per process for every env:
+
+* its simulator and task are passed in: dynamo guards on their constants (the config's values,
+  the tensors' shapes), not on an env instance, so a second env of the same configuration and
+  batch size reuses the first one's compiled step;
+* static sizes by default (``QuadWindEnv(compile_step=True)``): one graph per configuration and
+  batch size, the kernels every compiled result was recorded with. With ``compile_step="dynamic"``
+  the batch dimension is traced symbolic (``maybe_mark_dynamic``): a new ``N`` reuses the graph
+  (``N = 1`` gets one of its own: torch specialises sizes 0 and 1). The TensorDicts cross the
+  compiled boundary as flat tuples of their leaves, rebuilt inside around the leaves' batch
+  size: a TensorDict's ``batch_size`` is a Python constant to dynamo, which would pin ``N``;
+* what is traced is the graph the step has always had: the eager step's shortcuts (numbers made
+  tensors, fused ops) are taken only eagerly (:mod:`.operands`);
+* inductor's caches (the FX graph and AOTAutograd caches, on by default) keep the compiled code
+  on disk, in :func:`compile_cache_dir`: a later process on the same machine traces the step
+  again (dynamo's part) but compiles no C++ (minutes).
+"""
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, NamedTuple
+
+import torch
+from tensordict import TensorDict
+from torch import Tensor
+
+from .operands import operands
+from .tensordicts import entry, unchecked
+
+if TYPE_CHECKING:
+    from .simulator import QuadSimulator
+    from .task import Task
+
+# Dynamo keeps one compiled step per configuration and batch size (static; dynamic: per
+# configuration, and one for N = 1) and, past ``recompile_limit`` entries (torch's default: 8),
+# runs the step eagerly for every later one, silently: an ablation of three sweeps x five
+# controllers in one process has more
+COMPILED_STEPS_PER_PROCESS = 64
+
+
+def compile_cache_dir() -> Path:
+    """Where compiled steps are kept between processes: inductor's cache folder, the environment
+    variable ``TORCHINDUCTOR_CACHE_DIR``, by default ``torchinductor_<user>`` in the system's
+    temporary folder (on Linux emptied at a reboot). Set it before starting Python
+    to move the cache: torch writes its default into the variable the first time it looks, and
+    importing torchrl already does."""
+    from torch._inductor.runtime.cache_dir_utils import cache_dir
+
+    return Path(cache_dir())
+
+
+def held_control_step(sim: QuadSimulator, task: Task, params: TensorDict, state: TensorDict, action: Tensor,
+                      wind_ne: Tensor | None, reward: Tensor, steps: Tensor, terminated: Tensor, truncated: Tensor,
+                      merge: bool = True) -> tuple[TensorDict, Tensor, Tensor, Tensor, Tensor]:
+    """One control step of a held action, with the task's view of it, merged branch-free into
+    the decision's running totals ``(state, reward sum, steps, terminated, truncated)``: a row
+    whose episode ended earlier in the hold keeps its state and totals. Step and merge are one
+    function so that, compiled, they are one graph (no eager merge of every state leaf per
+    control step); the params do not change within an episode and are not merged.
+    ``merge=False``: no row has ended (the decision's first control step), the new state is
+    every row's."""
+    running = ~(terminated | truncated)
+    new = sim.step(params, state, action, wind_ne)
+    new_terminated, new_truncated = task.done(params, new)
+    new_reward = task.step_reward(params, state, new)
+    return (
+        new.where(running.reshape(-1), state) if merge else new,
+        reward + torch.where(running, new_reward, operands(sim.physics_constants.zero, 0.0)),
+        steps + running.to(steps.dtype),
+        torch.where(running, new_terminated, terminated),
+        torch.where(running, new_truncated, truncated),
+    )
+
+
+class _Layout(NamedTuple):
+    """The leaf keys of the params and the state, in order: how their leaves are flattened."""
+
+    params: tuple[tuple[str, ...], ...]
+    state: tuple[tuple[str, ...], ...]
+
+
+def _leaf_keys(td: TensorDict) -> tuple[tuple[str, ...], ...]:
+    return tuple(k if isinstance(k, tuple) else (k,) for k in td.keys(True, True))
+
+
+def _rebuild(keys: tuple[tuple[str, ...], ...], leaves: tuple[Tensor, ...], batch_size: torch.Size) -> TensorDict:
+    """The TensorDict whose leaves ``leaves`` sit at ``keys``, of batch ``batch_size``."""
+    tree: dict = {}
+    for key, leaf in zip(keys, leaves):
+        node = tree
+        for name in key[:-1]:
+            node = node.setdefault(name, {})
+        node[key[-1]] = leaf
+
+    def build(node: dict) -> TensorDict:
+        return unchecked(batch_size, {k: build(v) if isinstance(v, dict) else v for k, v in node.items()})
+
+    return build(tree)
+
+
+def _flat_held_control_step(sim: QuadSimulator, task: Task, layout: _Layout, params: tuple[Tensor, ...],
+                            state: tuple[Tensor, ...], action: Tensor, wind_ne: Tensor | None, reward: Tensor,
+                            steps: Tensor, terminated: Tensor, truncated: Tensor):
+    """:func:`held_control_step` on the params' and state's leaves (``layout``), the state's
+    leaves out: what is compiled. The TensorDicts are rebuilt around the action's batch size,
+    which the tracer sees as a symbol."""
+    batch_size = torch.Size(action.shape[:1])
+    new, reward, steps, terminated, truncated = held_control_step(
+        sim, task, _rebuild(layout.params, params, batch_size), _rebuild(layout.state, state, batch_size), action,
+        wind_ne, reward, steps, terminated, truncated)
+    return tuple(new.get(key) for key in layout.state), reward, steps, terminated, truncated
+
+
+@functools.cache
+def _compiled_function(dynamic: bool) -> Callable:
+    """The process's compiled :func:`_flat_held_control_step` of one kind, static sizes or a
+    symbolic batch dimension (compiled at its first call, not here), with dynamo's recompile
+    limit raised to :data:`COMPILED_STEPS_PER_PROCESS`. Static: ``dynamic=False``, no size ever
+    made symbolic (dynamo's default would make ``N`` symbolic at an env's second batch size,
+    and kernels of symbolic sizes are other kernels)."""
+    import torch._dynamo
+
+    cfg = torch._dynamo.config
+    cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_STEPS_PER_PROCESS)
+    return torch.compile(_flat_held_control_step, dynamic=None if dynamic else False)
+
+
+def _distinct(leaves: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
+    """``leaves`` with a tensor that is also an earlier leaf cloned. Dynamo guards on which inputs
+    are the same object, and that changes with the episode: a start makes some entries one tensor
+    (the scenario's sensor seed and the sensors' own), a partial reset or a merge separate copies,
+    and each change would cost a recompilation."""
+    seen: set[int] = set()
+    out = []
+    for leaf in leaves:
+        out.append(leaf.clone() if id(leaf) in seen else leaf)
+        seen.add(id(leaf))
+    return tuple(out)
+
+
+class CompiledControlStep:
+    """:func:`held_control_step` of ``sim`` and ``task`` through the process's compiled step
+    (module docstring); called as the eager one, without ``sim``, ``task`` and ``merge``.
+    ``dynamic``: the batch dimension symbolic (one graph for every ``N``), else static sizes."""
+
+    def __init__(self, sim: QuadSimulator, task: Task, dynamic: bool = False):
+        self.sim, self.task, self.dynamic = sim, task, dynamic
+        self._function = _compiled_function(dynamic)
+        self._layout: _Layout | None = None
+
+    def __call__(self, params: TensorDict, state: TensorDict, action: Tensor, wind_ne: Tensor | None,
+                 reward: Tensor, steps: Tensor, terminated: Tensor, truncated: Tensor):
+        first = self._layout is None
+        if first:  # the keys are the config's: the same at every step
+            self._layout = _Layout(_leaf_keys(params), _leaf_keys(state))
+        layout = self._layout
+        leaves = _distinct((*(entry(params, *k) for k in layout.params), *(entry(state, *k) for k in layout.state)))
+        params_leaves, state_leaves = leaves[:len(layout.params)], leaves[len(layout.params):]
+        totals = (reward, steps, terminated, truncated)
+        if first and self.dynamic:  # a graph traced with N symbolic keeps it so: later calls need no marks
+            for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
+                torch._dynamo.maybe_mark_dynamic(leaf, 0)
+        new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne, *totals)
+        return (_rebuild(layout.state, new, state.batch_size), *totals)
