@@ -44,10 +44,41 @@ def _run(sim: QuadSimulator, params: TensorDict, state: TensorDict, seconds: flo
     return state
 
 
-def test_hover_in_still_air():
-    sim, params, state = _hover_sim(quiet_config())
-    start = state["body", "pos"].clone()
-    state = _run(sim, params, state, 10.0)
+def _hover_rows(cfg: EnvConfig, winds_m_s: tuple[float, ...], seconds: tuple[float, ...]) -> list[tuple]:
+    """PD hovers of one sim, one row per mean wind (from the west; 0: still air), flown together:
+    row ``k`` is ``(sim, params, initial state, state at seconds[k])`` of that row alone. A row flies
+    as it would alone (exact replay), and an eager step of a few rows costs what one of one row does,
+    so the force-balance tests below share two flights instead of flying four."""
+    sim, params, state = _hover_sim(cfg, len(winds_m_s), wind_speed_ref_m_s=torch.tensor(winds_m_s),
+                                    wind_dir_deg=torch.tensor([270.0 if w else 0.0 for w in winds_m_s]))
+    start, at, flown = state, {}, 0.0
+    for t in sorted(set(seconds)):
+        state = _run(sim, params, state, t - flown)
+        at[t], flown = state, t
+    return [(sim, params[k:k + 1], start[k:k + 1], at[t][k:k + 1]) for k, t in enumerate(seconds)]
+
+
+@pytest.fixture(scope="module")
+def default_vehicle_hovers() -> dict[str, tuple]:
+    """The default vehicle (momentum rotor model, the 20 m/s wind cap) in still air for 10 s and in a
+    steady 8 m/s wind for 15 s."""
+    still, steady = _hover_rows(quiet_config(), (0.0, 8.0), (10.0, 15.0))
+    return {"still": still, "momentum": steady}
+
+
+@pytest.fixture(scope="module")
+def static_rotor_hovers() -> dict[str, tuple]:
+    """Static rotor thrust in a steady 8 m/s wind for 15 s and in a 40 m/s wind for 20 s. The cap on
+    the mean wind is the 40 m/s row's (60 m/s): it clips nothing below it, so the 8 m/s row flies as
+    under the default cap."""
+    cfg = windy_config(cap_m_s=60.0)
+    steady, gale = _hover_rows(replace(cfg, vehicle=replace(cfg.vehicle, rotor_aero="static")), (8.0, 40.0), (15.0, 20.0))
+    return {"static": steady, "gale": gale}
+
+
+def test_hover_in_still_air(default_vehicle_hovers):
+    sim, params, start, state = default_vehicle_hovers["still"]
+    start = start["body", "pos"]
     hover_speed = math.sqrt(VEH.mass_kg * GRAVITY_M_S2 / (4 * VEH.thrust_coeff))
     assert torch.allclose(state["body", "rotor"], torch.full((1, 4), hover_speed), rtol=5e-3)
     assert (state["body", "pos"] - start).norm() < 0.01
@@ -64,20 +95,19 @@ def _drag_components(airspeed: float, tilt: float) -> tuple[float, float]:
 
 
 @pytest.mark.parametrize("rotor_aero", ["static", "momentum"])
-def test_steady_wind_offset_matches_force_balance(rotor_aero):
+def test_steady_wind_offset_matches_force_balance(rotor_aero, default_vehicle_hovers, static_rotor_hovers):
     """In a steady 8 m/s wind the PD (no integral action) settles where its restoring force
     balances the drag: tilt from tan(t) = D_x / (m g - D_z). The rotors deliver ``r`` times the
     commanded thrust (``r = 1`` static; with the momentum model ``r`` of the body-frame airflow:
     airspeed sin(t) along the rotor axis, cos(t) across it, at the rotor speed of that thrust), so
     the offsets are x: D_x / (r m Kp_x) and z: (g - (m g - D_z) / (r m)) / Kp_z."""
-    wind = 8.0
-    cfg = windy_config()
-    cfg = replace(cfg, vehicle=replace(cfg.vehicle, rotor_aero=rotor_aero))
-    sim, params, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)  # from the west
-    ref = state["ref", "pos"].clone()
+    wind = 8.0  # from the west
     # settled by 15 s: tilt and offsets within 1e-4 (relative) of their values at 25 s, the length
     # this test flew before, for either rotor model; the tolerances below are 2 %
-    state = _run(sim, params, state, 15.0)
+    sim, params, start, state = {**default_vehicle_hovers, **static_rotor_hovers}[rotor_aero]
+    cfg = sim.cfg
+    assert cfg.vehicle.rotor_aero == rotor_aero and float(params["scenario", "wind_speed_ref_m_s"]) == wind
+    ref = start["ref", "pos"]
     weight = VEH.mass_kg * GRAVITY_M_S2
     tilt = 0.0
     for _ in range(100):
@@ -105,18 +135,16 @@ def test_steady_wind_offset_matches_force_balance(rotor_aero):
     assert rot[0, 0, 2].item() < 0  # the thrust axis leans upwind (towards -x)
 
 
-def test_tilt_limit_saturates_and_the_vehicle_is_blown_away():
+def test_tilt_limit_saturates_and_the_vehicle_is_blown_away(static_rotor_hovers):
     """Beyond the critical airspeed the tilt limit binds: the PD cannot hold position and the
     vehicle drifts downwind at the wind speed minus the airspeed its 35-degree tilt can hold.
     Static rotor thrust: at 30 m/s through discs tilted 35 degrees the momentum model's rotors
     lose a third of their thrust, and the closed form below is for the drag and the tilt alone."""
-    wind = 40.0
-    cfg = windy_config(cap_m_s=60.0)
-    cfg = replace(cfg, vehicle=replace(cfg.vehicle, rotor_aero="static"))
-    sim, params, state = _hover_sim(cfg, wind_speed_ref_m_s=wind, wind_dir_deg=270.0)
+    wind = 40.0  # from the west
     # the drift speed is steady by 20 s (within 1e-5, relative, of its value at 30 s, the length this
     # test flew before; the tolerance below is 2 %), and the vehicle is then 180 m downwind
-    state = _run(sim, params, state, 20.0)
+    sim, params, _, state = static_rotor_hovers["gale"]
+    assert sim.cfg.vehicle.rotor_aero == "static" and float(params["scenario", "wind_speed_ref_m_s"]) == wind
     max_tilt = math.radians(35.0)
     weight = VEH.mass_kg * GRAVITY_M_S2
     # (m g - D_z(v)) tan(35) = D_x(v), both quadratic in v: solve for v^2
