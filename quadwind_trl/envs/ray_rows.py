@@ -117,6 +117,9 @@ class RayRowsEnv(EnvBase):
         return [*self.full_action_spec.keys(True, True), *self.full_state_spec.keys(True, True)]
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        # by design: the collector steps every row each time (ended rows restart through
+        # ``_reset``, as in the one-process env, which has no partial step either); a subset step
+        # would fly other rows than the one-process run it must equal bit for bit, so it is refused
         if tensordict.get("_step", None) is not None:
             raise NotImplementedError("RayRowsEnv steps every row at once; a partial step ('_step') is not supported")
         inputs = tensordict.select(*self._input_keys(), strict=False).cpu()
@@ -141,8 +144,9 @@ class RayRowsEnv(EnvBase):
         return self._last
 
     def _set_seed(self, seed: int | None) -> None:
-        # each actor's env is seeded by its constructor (its rows of one seeded batch): a seed of
-        # TorchRL's choosing per actor would fly other episodes than the one-process env
+        # by design: each actor's env is seeded by its constructor (its rows of one seeded batch);
+        # a seed of TorchRL's choosing per actor would fly other episodes than the one-process env,
+        # so ``set_seed`` is refused rather than silently breaking the row-for-row equality
         raise NotImplementedError("RayRowsEnv: seed the rows through their constructors (makers)")
 
     def call(self, method: str, *args: Any) -> list:
