@@ -162,7 +162,7 @@ SWEEP_REGIME = {"horizontal": "horizontal", "vertical": "vertical", "ood": "hori
 # observer's filter time constant (s). The out-of-distribution sweep flies the horizontal ones.
 CLASSICAL_CHOICES = {
     "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02},
-    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.1},
+    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02},
 }
 CLASSICAL_CONTROLLERS = ("pid", "dob", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff", "pid_ff_blind", "pid_ff_oracle")
 # how tables and figures name them
