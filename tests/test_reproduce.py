@@ -266,3 +266,50 @@ def test_the_longest_chain_follows_what_each_stage_needs_and_names_the_untimed(t
     times["b"] = {"wall_time_s": 30.0}
     assert longest_chain(plan, times).stages[:2] == (("a", 10.0), ("b", 30.0))
     assert longest_chain([], {}).seconds == 0.0
+
+
+def test_the_toy_page_shows_what_the_quick_stages_flew_and_trained(tmp_path):
+    """The toy report (recipes/report.py --toy) from files of the shapes the --quick stages write:
+    one row per ablation with its own episode count, the figures beside the page, every PPO run
+    (its own manifest, else the kept copy) and nothing of the paper's; with a PD baseline and no
+    ablation, PD's row alone. The end-to-end run above makes such files with the real stages; this
+    checks the page without flying or training."""
+    from test_figures import _sweep
+
+    from quadwind_trl.evaluation.report import build_report, policy_runs
+
+    results, runs = tmp_path / "results", tmp_path / "runs"
+    for sweep, trajectories in (("horizontal", ("racetrack_h", "lawnmower_h")), ("vertical", ("figure8_3d",))):
+        _, _, summary = _sweep(sweep, trajectories)
+        (results / f"ablation_{sweep}.json").parent.mkdir(parents=True, exist_ok=True)
+        (results / f"ablation_{sweep}.json").write_text(json.dumps(summary))
+    (tmp_path / "figures").mkdir()
+    for name in ("tracking_horizontal.png", "learning_curves.png"):
+        (tmp_path / "figures" / name).write_bytes(b"")
+
+    def manifest(frames: int, seconds: float, improvement: float) -> dict:
+        return {"command": f"/x/recipes/ppo_horizontal.py --quick --out {runs}", "git_commit": "abc", "frames": frames,
+                "wall_time_s": seconds, "env_spec": {"env_config": {"controller": {"disturbance": "none"}}},
+                "evals": [{"frames": frames, "improvement_rmse_xy_pct": improvement, "win_rate": 0.0}]}
+
+    (runs / "ppo_horizontal" / "logs").mkdir(parents=True)
+    (runs / "ppo_horizontal" / "policy.json").write_text(json.dumps(manifest(1024, 42.4, -5.47)))
+    (results / "policies").mkdir()
+    (results / "policies" / "ppo_vertical.json").write_text(json.dumps(manifest(2048, 385.0, 3.0)))
+    manifests, logged = policy_runs(runs, results / "policies")
+    assert list(manifests) == ["ppo_horizontal", "ppo_vertical"] and logged == {"ppo_horizontal": runs / "ppo_horizontal"}
+    report = build_report(results, tmp_path / "sections", "# the paper's page", manifests, toy=True)
+    assert report.startswith("# Toy run: not the paper's results")
+    for absent in ("225", "144", "ratio", "paper:", " 0 min", "simulator.md"):  # nothing it did not fly, no dead link
+        assert absent not in report, absent
+    rows = [line for line in report.splitlines() if line.startswith("| ")]
+    assert rows[1].startswith("| horizontal | 8 | ") and rows[2].startswith("| vertical | 4 | ") and "RMSE reduction" in report
+    assert "- [learning_curves](figures/learning_curves.png)\n- [tracking_horizontal](figures/tracking_horizontal.png)" in report
+    assert "| ppo_horizontal | `python recipes/ppo_horizontal.py --quick" in report
+    assert "| 1,024 | 42 s | 1,024 -> -5.5 % (0.00) |" in report and "| 2,048 | 6 min | 2,048 -> +3.0 % (0.00) |" in report
+    # before any ablation: the PD baseline's own row
+    for sweep in ("horizontal", "vertical"):
+        (results / f"ablation_{sweep}.json").unlink()
+    (results / "pd_baseline.json").write_text(json.dumps({"sweeps": {"horizontal": {"tables": {"rmse_xy": {"all": {"n": 45, "mean": 0.5}}}}}}))
+    rows = [line for line in build_report(results, tmp_path / "sections", "", toy=True).splitlines() if line.startswith("| ")]
+    assert rows[1:] == ["| horizontal | 45 | 0.500 | - | - | - |"]
