@@ -349,3 +349,17 @@ def test_features_and_windows_of_a_generated_dataset(tiny, tmp_path):
     f0, e0 = wd.tables["train"][0].tolist()
     assert torch.allclose(x, wd.feature_stats(cached[f0, e0 - 19 : e0 + 1]))
     assert torch.equal(y, data["record", "mean_wind_ne"][f0, e0])
+
+
+def test_describe_summarises_a_dataset_in_two_lines():
+    """What recipes/generate_flights.py prints after a run: counts, record shape and rate, flight
+    lengths (the record's valid samples), crashes and PD's median RMSEs."""
+    from tensordict import TensorDict
+
+    data = TensorDict({"length": torch.tensor([150, 250, 200]), "crashed": torch.tensor([False, True, False]),
+                       "rmse_xy": torch.tensor([0.2, 0.9, 0.4]), "rmse_z": torch.tensor([0.1, 0.3, 0.2])}, batch_size=[3])
+    manifest = {"regime": "horizontal", "num_flights": 3, "cases": 1, "trajectories": ["a", "b", "c"], "record_length": 300,
+                "record_dt_s": 0.1}
+    assert generate_mod.describe(data, manifest).splitlines() == [
+        "horizontal: 3 flights = 1 cases x 3 trajectories, record [3, 300] at 10 Hz",
+        "flight length 15.0-25.0 s, crashed 1, PD rmse_xy median 0.400 m, rmse_z median 0.200 m"]
