@@ -33,6 +33,7 @@ from quadwind_trl.data import (
     split_cases,
     window_table,
 )
+from quadwind_trl.data.generate import dataset_bytes
 from quadwind_trl.data.windows import sample_stats, t_safety_s
 from quadwind_trl.envs import RegimeRanges
 from quadwind_trl.envs.sensors import sensor_widths
@@ -103,6 +104,8 @@ def test_dataset_layout(tiny):
     assert {k: v.shape[-1] for k, v in rec[MEAS_KEY].items()} == sensor_widths()  # the sensors' named entries
     assert rec["mean_wind_ne"].shape[-1] == 2
     assert all(isinstance(v, MemoryMappedTensor) for v in data.values(True, True))  # lazy, on disk
+    # the size the generator reports counts every tensor's whole length (memmaps may be sparse on disk)
+    assert dataset_bytes(tiny) >= sum(v.numel() * v.element_size() for v in data.values(True, True))
     # valid samples are a prefix of the stored length; steps are every 10th control step
     t_idx = torch.arange(rec.batch_size[1])
     assert torch.equal(rec["valid"], t_idx < data["length"][:, None])
@@ -116,7 +119,8 @@ def test_dataset_layout(tiny):
 
 
 def test_generation_is_deterministic_and_batch_independent(tmp_path, micro_at_batch3):
-    first = generate_dataset(tmp_path / "first", micro_spec(), max_batch=5, progress=False)
+    # --resume with nothing to resume is a fresh run
+    first = generate_dataset(tmp_path / "first", micro_spec(), max_batch=5, progress=False, resume=True)
     again = micro_at_batch3  # the same spec in chunks of 3 and 2
     files = data_files(first)
     assert files == data_files(again)

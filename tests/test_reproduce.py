@@ -1,5 +1,6 @@
-"""The whole pipeline end to end at toy scale: ``recipes/reproduce.py --quick`` (datasets ->
-estimators -> PPO -> paired ablation with PD -> toy report -> summary), in a fresh directory."""
+"""The pipeline's plan and its executor, and (slow) the whole pipeline end to end at toy scale:
+``recipes/reproduce.py --quick`` (datasets -> estimators -> PPO -> paired ablation with PD -> toy
+report -> summary), in a fresh directory."""
 from __future__ import annotations
 
 import json
@@ -15,8 +16,11 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.long
+@pytest.mark.slow
 def test_quick_reproduce_runs_every_stage(tmp_path):
+    """Slow (about ten CPU-minutes): the quickstart runs the same pipeline, and every line of the
+    library this test reaches is reached by a test of the default suite (measured with
+    coverage): each recipe's --quick run and the toy report have their own tests."""
     out = tmp_path / "quick"
     run = subprocess.run(
         [sys.executable, str(ROOT / "recipes" / "reproduce.py"), "--quick", "--out", str(out)],
@@ -28,7 +32,7 @@ def test_quick_reproduce_runs_every_stage(tmp_path):
     for regime in ("horizontal", "vertical"):
         assert (out / f"estimator_{regime}.pt").exists()
         assert (out / f"ppo_{regime}" / "policy.pt").exists()
-    # the horizontal PPO recipe as shipped, at --quick scale (its own test would fly it again)
+    # the horizontal PPO recipe as shipped, at --quick scale
     m = json.loads((out / "ppo_horizontal" / "policy.json").read_text())
     assert m["frames"] == 1024 and m["env_spec"]["regime"] == "horizontal" and m["metrics"]["episodes"] == 1
     assert m["env_spec"]["env_config"]["reward"]["w_z"] == 1.0
@@ -248,6 +252,24 @@ def test_a_failed_stage_starts_nothing_more_and_the_command_fails(tmp_path, monk
     assert (tmp_path / "slow.json").exists()  # the running one finished
     assert not (tmp_path / "after.json").exists() and not (tmp_path / "later.json").exists()
     assert "[fail] failed (exit status 3)" in capsys.readouterr().out
+
+
+def test_the_command_runs_the_stages_it_selects_on_this_machine(tmp_path, monkeypatch, capsys):
+    """``reproduce.py --only``, through its ``main`` and the local executor: the selected stage
+    runs (its unselected needs do not), and its time is added to the record."""
+    reproduce = _load_reproduce(monkeypatch)
+    (tmp_path / "recipes").mkdir()
+    (tmp_path / "recipes" / "stamp.py").write_text(_STAMP)
+    (tmp_path / "results").mkdir()
+    monkeypatch.setattr(reproduce, "ROOT", tmp_path)
+    plan = _stamp_stages(reproduce, tmp_path, {"a": (0.1, ()), "b": (0.1, ("a",))})
+    monkeypatch.setattr(reproduce, "stages", lambda quick, out: plan)
+    monkeypatch.setattr(sys, "argv", ["reproduce.py", "--full", "--only", "b", "--jobs", "1"])
+    reproduce.main()
+    assert (tmp_path / "b.json").exists() and not (tmp_path / "a.json").exists()
+    assert set(json.loads((tmp_path / "results" / "pipeline_times.json").read_text())) == {"b"}
+    out = capsys.readouterr().out
+    assert "[b] b starts" in out and "this session's stages finished" in out
 
 
 def test_the_longest_chain_follows_what_each_stage_needs_and_names_the_untimed(tmp_path):
