@@ -33,6 +33,7 @@ from quadwind_trl.data import (
     split_cases,
     window_table,
 )
+from quadwind_trl.data.generate import dataset_bytes
 from quadwind_trl.data.windows import sample_stats, t_safety_s
 from quadwind_trl.envs import RegimeRanges
 from quadwind_trl.envs.sensors import sensor_widths
@@ -103,6 +104,8 @@ def test_dataset_layout(tiny):
     assert {k: v.shape[-1] for k, v in rec[MEAS_KEY].items()} == sensor_widths()  # the sensors' named entries
     assert rec["mean_wind_ne"].shape[-1] == 2
     assert all(isinstance(v, MemoryMappedTensor) for v in data.values(True, True))  # lazy, on disk
+    # the size the generator reports counts every tensor's whole length (memmaps may be sparse on disk)
+    assert dataset_bytes(tiny) >= sum(v.numel() * v.element_size() for v in data.values(True, True))
     # valid samples are a prefix of the stored length; steps are every 10th control step
     t_idx = torch.arange(rec.batch_size[1])
     assert torch.equal(rec["valid"], t_idx < data["length"][:, None])
@@ -116,7 +119,8 @@ def test_dataset_layout(tiny):
 
 
 def test_generation_is_deterministic_and_batch_independent(tmp_path, micro_at_batch3):
-    first = generate_dataset(tmp_path / "first", micro_spec(), max_batch=5, progress=False)
+    # --resume with nothing to resume is a fresh run
+    first = generate_dataset(tmp_path / "first", micro_spec(), max_batch=5, progress=False, resume=True)
     again = micro_at_batch3  # the same spec in chunks of 3 and 2
     files = data_files(first)
     assert files == data_files(again)
@@ -349,3 +353,17 @@ def test_features_and_windows_of_a_generated_dataset(tiny, tmp_path):
     f0, e0 = wd.tables["train"][0].tolist()
     assert torch.allclose(x, wd.feature_stats(cached[f0, e0 - 19 : e0 + 1]))
     assert torch.equal(y, data["record", "mean_wind_ne"][f0, e0])
+
+
+def test_describe_summarises_a_dataset_in_two_lines():
+    """What recipes/generate_flights.py prints after a run: counts, record shape and rate, flight
+    lengths (the record's valid samples), crashes and PD's median RMSEs."""
+    from tensordict import TensorDict
+
+    data = TensorDict({"length": torch.tensor([150, 250, 200]), "crashed": torch.tensor([False, True, False]),
+                       "rmse_xy": torch.tensor([0.2, 0.9, 0.4]), "rmse_z": torch.tensor([0.1, 0.3, 0.2])}, batch_size=[3])
+    manifest = {"regime": "horizontal", "num_flights": 3, "cases": 1, "trajectories": ["a", "b", "c"], "record_length": 300,
+                "record_dt_s": 0.1}
+    assert generate_mod.describe(data, manifest).splitlines() == [
+        "horizontal: 3 flights = 1 cases x 3 trajectories, record [3, 300] at 10 Hz",
+        "flight length 15.0-25.0 s, crashed 1, PD rmse_xy median 0.400 m, rmse_z median 0.200 m"]

@@ -315,12 +315,31 @@ def _run_recipe(script: str, tmp_path: Path, *extra: str) -> dict:
     return json.loads((out / "policy.json").read_text())
 
 
-# the horizontal recipe at --quick scale: tests/test_reproduce.py, which runs it as a pipeline stage
+def test_quick_horizontal_recipe_as_the_toy_pipeline_runs_it(tmp_path):
+    """The horizontal recipe as the toy pipeline's stage runs it: ``--quick --resume`` into a fresh
+    folder (nothing to resume is a new run), an estimator named by path, its one evaluation, and
+    the kept policy's line. Its env is the shipped vehicle's (feedback from the navigation filter)."""
+    out = tmp_path / "ppo_horizontal"
+    estimator = ROOT / "quadwind_trl" / "checkpoints" / "estimator_horizontal.pt"
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "recipes" / "ppo_horizontal.py"), "--quick", "--resume", "--estimator", str(estimator),
+         "--out", str(out), "--no-progress"],
+        capture_output=True, text=True, timeout=600, cwd=ROOT, env=dict(os.environ, PYTHONWARNINGS="ignore"),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    assert f"--resume: no checkpoint at {out / 'checkpoints' / 'latest.pt'}; starting a new run" in proc.stdout
+    m = json.loads((out / "policy.json").read_text())
+    assert m["frames"] == 1024 and m["env_spec"]["regime"] == "horizontal" and m["metrics"]["episodes"] == 1
+    assert m["env_spec"]["env_config"]["reward"]["w_z"] == REWARD_W_Z["horizontal"]
+    assert m["env_spec"]["env_config"]["controller"]["feedback"] == "estimate"  # the shipped vehicle by default
+    assert m["env_spec"]["estimator_path"] == "quadwind_trl/checkpoints/estimator_horizontal.pt"  # repository-relative
+    kept = next(line for line in proc.stdout.splitlines() if line.startswith("kept policy"))
+    assert f"rmse {m['metrics']['rmse']:.3f} m vs PD {m['metrics']['pd_rmse']:.3f} m" in kept
 
 
 def test_quick_vertical_curriculum_recipe(tmp_path):
-    # one batch, no evaluation: what is checked is the saved env; tests/test_reproduce.py flies the
-    # recipe's whole --quick run (four batches and an evaluation)
+    # one batch, no evaluation: what is checked is the saved env (the horizontal recipe's test above
+    # runs a whole --quick run, its evaluation included)
     m = _run_recipe("ppo_vertical_curriculum.py", tmp_path, "--sensing", "true_state", "--total-frames", "256",
                     "--eval-episodes", "0", "--zero-inputs", "pd_thrust", "attitude")
     assert m["env_spec"]["env_config"]["reward"]["w_z"] == REWARD_W_Z["vertical"]  # the regime's preset reaches the saved env

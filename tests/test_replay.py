@@ -100,3 +100,41 @@ def test_the_tolerance_holds_between_processors_of_one_vector_instruction_set():
     if here["vector_isa"] is not None:  # /proc/cpuinfo readable: the lowered path counts as this processor only when recorded
         assert replay_verdict(moved, {**lowered, "vector_isa": here["vector_isa"]}, rtol)[0] is False
     assert "statistical" in replay_verdict(moved, lowered, rtol)[1]  # unknown instruction set: never the tolerance
+
+
+def test_an_ablation_file_re_flies_its_recorded_batch_bit_for_bit():
+    """``recipes/ablation.py --verify``: a results file's batch re-flown from what the file records
+    (sweep, --quick, controllers, policy, batch layout) gives its RMSEs and crash flags to the bit
+    on the platform that flew it. One batch of one quick episode: the unit of a check is a recorded
+    batch, whatever the file's size. The file's episode table is the recipe's, with the horizontal
+    error per flight phase, which splits every controller over the same samples."""
+    from quadwind_trl.estimator import load_estimator
+    from quadwind_trl.evaluation.ablation import episode_table, fly_controllers, policy_compile_step, policy_env_config
+    from quadwind_trl.evaluation.phases import PHASES, pattern_starts
+    from quadwind_trl.evaluation.replay import verify_ablation
+    from quadwind_trl.evaluation.tracking import sweep_setup
+    from quadwind_trl.manifest import CHECKPOINT_DIR, repo_relative
+    from quadwind_trl.regimes import SWEEPS
+    from quadwind_trl.rl.policy import load_policy
+
+    policy = CHECKPOINT_DIR / "policy_horizontal.pt"
+    scenarios, override = sweep_setup(SWEEPS["horizontal"], True)
+    controllers = ("pd", "aware")
+    flown = fly_controllers("horizontal", scenarios, policy, load_estimator("horizontal"), controllers, batch=1,
+                            config_override=override, compile_step=False, chunks=range(1))  # eager, as the file records none
+    payload = load_policy(policy)[1]
+    assert not policy_compile_step({"env_spec": {}})  # a policy saved before the RL stack compiled trained eagerly
+    table = episode_table(scenarios[:1], flown, pattern_starts(scenarios[:1], override(policy_env_config(payload))))
+    assert not table["pd_crashed"].any() and not table["aware_crashed"].any()
+    for phase in PHASES:
+        assert torch.equal(table[f"pd_samples_{phase}"], table[f"aware_samples_{phase}"]), phase
+    assert (table["pd_samples_straight"] + table["pd_samples_turn"]).item() > 0
+    table = {key: table[key].tolist() for key in table.keys()}
+    results = {"sweep": "horizontal", "command": "python recipes/ablation.py --quick", "policy": repo_relative(policy),
+               "controllers": list(controllers), "batch": 1, "episodes": scenarios.batch_size[0], "episodes_table": table,
+               "platform": platform_info()}
+    agreements, episodes = verify_ablation(results, chunks=range(1))
+    assert episodes == 1 and set(agreements) == set(controllers)
+    for name, agreement in agreements.items():
+        holds, verdict = replay_verdict(agreement, results["platform"])
+        assert holds and verdict == "bitwise (same platform): 3/3 values bit-identical", (name, verdict)

@@ -1,5 +1,6 @@
-"""The whole pipeline end to end at toy scale: ``recipes/reproduce.py --quick`` (datasets ->
-estimators -> PPO -> paired ablation with PD -> toy report -> summary), in a fresh directory."""
+"""The pipeline's plan and its executor, and (slow) the whole pipeline end to end at toy scale:
+``recipes/reproduce.py --quick`` (datasets -> estimators -> PPO -> paired ablation with PD -> toy
+report -> summary), in a fresh directory."""
 from __future__ import annotations
 
 import json
@@ -15,8 +16,11 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.mark.long
+@pytest.mark.slow
 def test_quick_reproduce_runs_every_stage(tmp_path):
+    """Slow (about ten CPU-minutes): the quickstart runs the same pipeline, and every line of the
+    library this test reaches is reached by a test of the default suite (measured with
+    coverage): each recipe's --quick run and the toy report have their own tests."""
     out = tmp_path / "quick"
     run = subprocess.run(
         [sys.executable, str(ROOT / "recipes" / "reproduce.py"), "--quick", "--out", str(out)],
@@ -28,7 +32,7 @@ def test_quick_reproduce_runs_every_stage(tmp_path):
     for regime in ("horizontal", "vertical"):
         assert (out / f"estimator_{regime}.pt").exists()
         assert (out / f"ppo_{regime}" / "policy.pt").exists()
-    # the horizontal PPO recipe as shipped, at --quick scale (its own test would fly it again)
+    # the horizontal PPO recipe as shipped, at --quick scale
     m = json.loads((out / "ppo_horizontal" / "policy.json").read_text())
     assert m["frames"] == 1024 and m["env_spec"]["regime"] == "horizontal" and m["metrics"]["episodes"] == 1
     assert m["env_spec"]["env_config"]["reward"]["w_z"] == 1.0
@@ -250,6 +254,24 @@ def test_a_failed_stage_starts_nothing_more_and_the_command_fails(tmp_path, monk
     assert "[fail] failed (exit status 3)" in capsys.readouterr().out
 
 
+def test_the_command_runs_the_stages_it_selects_on_this_machine(tmp_path, monkeypatch, capsys):
+    """``reproduce.py --only``, through its ``main`` and the local executor: the selected stage
+    runs (its unselected needs do not), and its time is added to the record."""
+    reproduce = _load_reproduce(monkeypatch)
+    (tmp_path / "recipes").mkdir()
+    (tmp_path / "recipes" / "stamp.py").write_text(_STAMP)
+    (tmp_path / "results").mkdir()
+    monkeypatch.setattr(reproduce, "ROOT", tmp_path)
+    plan = _stamp_stages(reproduce, tmp_path, {"a": (0.1, ()), "b": (0.1, ("a",))})
+    monkeypatch.setattr(reproduce, "stages", lambda quick, out: plan)
+    monkeypatch.setattr(sys, "argv", ["reproduce.py", "--full", "--only", "b", "--jobs", "1"])
+    reproduce.main()
+    assert (tmp_path / "b.json").exists() and not (tmp_path / "a.json").exists()
+    assert set(json.loads((tmp_path / "results" / "pipeline_times.json").read_text())) == {"b"}
+    out = capsys.readouterr().out
+    assert "[b] b starts" in out and "this session's stages finished" in out
+
+
 def test_the_longest_chain_follows_what_each_stage_needs_and_names_the_untimed(tmp_path):
     from quadwind_trl.pipeline import Stage, longest_chain
 
@@ -266,3 +288,50 @@ def test_the_longest_chain_follows_what_each_stage_needs_and_names_the_untimed(t
     times["b"] = {"wall_time_s": 30.0}
     assert longest_chain(plan, times).stages[:2] == (("a", 10.0), ("b", 30.0))
     assert longest_chain([], {}).seconds == 0.0
+
+
+def test_the_toy_page_shows_what_the_quick_stages_flew_and_trained(tmp_path):
+    """The toy report (recipes/report.py --toy) from files of the shapes the --quick stages write:
+    one row per ablation with its own episode count, the figures beside the page, every PPO run
+    (its own manifest, else the kept copy) and nothing of the paper's; with a PD baseline and no
+    ablation, PD's row alone. The end-to-end run above makes such files with the real stages; this
+    checks the page without flying or training."""
+    from test_figures import _sweep
+
+    from quadwind_trl.evaluation.report import build_report, policy_runs
+
+    results, runs = tmp_path / "results", tmp_path / "runs"
+    for sweep, trajectories in (("horizontal", ("racetrack_h", "lawnmower_h")), ("vertical", ("figure8_3d",))):
+        _, _, summary = _sweep(sweep, trajectories)
+        (results / f"ablation_{sweep}.json").parent.mkdir(parents=True, exist_ok=True)
+        (results / f"ablation_{sweep}.json").write_text(json.dumps(summary))
+    (tmp_path / "figures").mkdir()
+    for name in ("tracking_horizontal.png", "learning_curves.png"):
+        (tmp_path / "figures" / name).write_bytes(b"")
+
+    def manifest(frames: int, seconds: float, improvement: float) -> dict:
+        return {"command": f"/x/recipes/ppo_horizontal.py --quick --out {runs}", "git_commit": "abc", "frames": frames,
+                "wall_time_s": seconds, "env_spec": {"env_config": {"controller": {"disturbance": "none"}}},
+                "evals": [{"frames": frames, "improvement_rmse_xy_pct": improvement, "win_rate": 0.0}]}
+
+    (runs / "ppo_horizontal" / "logs").mkdir(parents=True)
+    (runs / "ppo_horizontal" / "policy.json").write_text(json.dumps(manifest(1024, 42.4, -5.47)))
+    (results / "policies").mkdir()
+    (results / "policies" / "ppo_vertical.json").write_text(json.dumps(manifest(2048, 385.0, 3.0)))
+    manifests, logged = policy_runs(runs, results / "policies")
+    assert list(manifests) == ["ppo_horizontal", "ppo_vertical"] and logged == {"ppo_horizontal": runs / "ppo_horizontal"}
+    report = build_report(results, tmp_path / "sections", "# the paper's page", manifests, toy=True)
+    assert report.startswith("# Toy run: not the paper's results")
+    for absent in ("225", "144", "ratio", "paper:", " 0 min", "simulator.md"):  # nothing it did not fly, no dead link
+        assert absent not in report, absent
+    rows = [line for line in report.splitlines() if line.startswith("| ")]
+    assert rows[1].startswith("| horizontal | 8 | ") and rows[2].startswith("| vertical | 4 | ") and "RMSE reduction" in report
+    assert "- [learning_curves](figures/learning_curves.png)\n- [tracking_horizontal](figures/tracking_horizontal.png)" in report
+    assert "| ppo_horizontal | `python recipes/ppo_horizontal.py --quick" in report
+    assert "| 1,024 | 42 s | 1,024 -> -5.5 % (0.00) |" in report and "| 2,048 | 6 min | 2,048 -> +3.0 % (0.00) |" in report
+    # before any ablation: the PD baseline's own row
+    for sweep in ("horizontal", "vertical"):
+        (results / f"ablation_{sweep}.json").unlink()
+    (results / "pd_baseline.json").write_text(json.dumps({"sweeps": {"horizontal": {"tables": {"rmse_xy": {"all": {"n": 45, "mean": 0.5}}}}}}))
+    rows = [line for line in build_report(results, tmp_path / "sections", "", toy=True).splitlines() if line.startswith("| ")]
+    assert rows[1:] == ["| horizontal | 45 | 0.500 | - | - | - |"]
