@@ -10,6 +10,7 @@ from dataclasses import replace
 
 import pytest
 import torch
+from tensordict import TensorDict
 
 ray = pytest.importorskip("ray")
 
@@ -64,6 +65,13 @@ def test_ray_actors_collect_the_batches_of_local_workers_bit_for_bit(local_ray):
     local = _collect(factory(workers=2), 2)
     env = factory(workers=2, workers_on="ray")
     assert len(env.base_env.nodes) == 2
+    # refused by design (they would fly other rows than the local workers): a partial step, and a
+    # seed of TorchRL's choosing instead of the makers' own
+    with pytest.raises(NotImplementedError, match="partial step"):
+        rows = env.base_env.batch_size
+        env.base_env._step(TensorDict({"_step": torch.ones(*rows, 1, dtype=torch.bool)}, batch_size=rows))
+    with pytest.raises(NotImplementedError, match="seed the rows through their constructors"):
+        env.base_env.set_seed(0)
     remote = _collect(env, 2)
     assert remote.batch_size == local.batch_size == (2, 2, 2 * STEPS)
     assert int(local["next", "truncated"].sum()) >= 4 + 3  # the switch truncated every row, the desync some
