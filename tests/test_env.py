@@ -338,6 +338,10 @@ def test_partial_reset_touches_only_masked_rows():
             assert torch.equal(now[key][1:3], before[part][key][1:3]), (part, key)
             assert torch.equal(now[key][[0, 3]], ref[key][[0, 3]]), (part, key)
     assert torch.equal(out["step"][[0, 3]], torch.zeros(2, 1, dtype=torch.int64))
+    # the episodes now running: the restarted rows' new scenarios beside the others' first ones
+    running = env.scenario()
+    for field in sc.keys():
+        assert torch.equal(running[field], torch.where(mask.reshape(4, *([1] * (sc[field].dim() - 1))), fresh[field], sc[field])), field
 
 
 def test_partial_reset_draws_and_builds_the_rows_a_full_reset_would():
