@@ -81,7 +81,7 @@ class VehicleConfig:
             )
 
 
-DISTURBANCE_MODELS = ("none", "wind_model", "observer")  # ControllerConfig.disturbance
+DISTURBANCE_MODELS = ("none", "wind_model", "observer", "l1")  # ControllerConfig.disturbance
 
 
 @dataclass(frozen=True)
@@ -110,10 +110,15 @@ class ControllerConfig:
     integral_limit_m_s: tuple[float, float, float] = (3.0, 3.0, 3.0)
     # What the outer loop cancels as an external force: "none"; "wind_model" predicts the
     # airframe's drag from a wind estimate (the env's input ``keys.BASE_WIND_KEY``) and its own
-    # velocity; "observer" estimates the force from the accelerometer and the applied thrust,
-    # low-pass filtered with time constant observer_tau_s.
-    disturbance: Literal["none", "wind_model", "observer"] = "none"
+    # velocity; "observer" estimates the force from the accelerometer and the applied thrust;
+    # "l1" is L1 adaptive control's estimate, from a velocity predictor's error (no accelerometer).
+    # Both estimates are low-pass filtered with time constant observer_tau_s.
+    disturbance: Literal["none", "wind_model", "observer", "l1"] = "none"
     observer_tau_s: float = 0.3
+    # L1's state predictor: the rate (1/s) at which its velocity error decays, A_s = -l1_pole_1_s I
+    # (5 1/s: the translational A_s of a public Crazyflie firmware port of L1Quad, Wu et al.,
+    # IEEE T-CST 33(2), 2025; with the piecewise-constant adaptation law it matters little)
+    l1_pole_1_s: float = 5.0
 
     @property
     def needs_wind(self) -> bool:
@@ -134,6 +139,7 @@ class ControllerConfig:
         if self.disturbance not in DISTURBANCE_MODELS:
             raise ValueError(f"ControllerConfig.disturbance={self.disturbance!r}; allowed: {DISTURBANCE_MODELS}")
         _check_range("ControllerConfig", "observer_tau_s", self.observer_tau_s, 0.01, 10.0)
+        _check_range("ControllerConfig", "l1_pole_1_s", self.l1_pole_1_s, 0.1, 100.0)
 
 
 @dataclass(frozen=True)

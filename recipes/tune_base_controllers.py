@@ -7,21 +7,26 @@ crash no more often than PD (``evaluation.base_search.select_candidate``).
     python recipes/tune_base_controllers.py                      # both regimes, every family
     python recipes/tune_base_controllers.py --regimes horizontal --families pid
     python recipes/tune_base_controllers.py --quick              # three episodes, short flights, small grids
+    python recipes/tune_base_controllers.py --families l1         # one family more, beside those already flown
 
 Families (``ControllerConfig``): ``pid`` the integral gain ``Ki`` (all three axes; the integral
-clamped at 3 m s), ``dob`` the disturbance observer's filter time constant, ``pid_ff`` the integral
-gain on top of wind feed-forward from the shipped estimator (``Ki = 0`` is PD with feed-forward
-alone). The candidates of a family fly in one batch (``evaluation.base_search``). Every family
+clamped at 3 m s), ``dob`` the disturbance observer's filter time constant, ``l1`` the filter time
+constant of L1 adaptive control's force (its predictor pole at the config's default), ``pid_ff``
+the integral gain on top of wind feed-forward from the shipped estimator (``Ki = 0`` is PD with
+feed-forward alone). The candidates of a family fly in one batch (``evaluation.base_search``). Every family
 flies in the env the shipped policy of the regime trained in (its config, its estimate's EMA and
 query interval), so the chosen controllers see the worlds the RL sees. Writes
 ``results/base_search_<regime>.json`` (``--quick``: under ``runs/quick/results``): every
 candidate's score, means, gains over PD and crashes, the chosen value per family, the command,
-commit and platform. The chosen values are copied into ``regimes.CLASSICAL_CONTROLLERS`` by hand,
+commit and platform. A run of some families keeps the others of an existing file, provided that
+file was flown in the same env on the same episodes (each family records the commit and command
+that flew it). The chosen values are copied into ``regimes.CLASSICAL_CONTROLLERS`` by hand,
 and docs/simulator.md ("Classical base controllers") shows the tables.
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from dataclasses import replace
@@ -54,8 +59,29 @@ def families(quick: bool) -> dict[str, tuple[str, str, list[ControllerConfig]]]:
     return {
         "pid": ("ki_pos", "zero", [ControllerConfig(ki_pos=axes(k)) for k in ki]),
         "dob": ("observer_tau_s", "zero", [ControllerConfig(disturbance="observer", observer_tau_s=t) for t in tau]),
+        "l1": ("observer_tau_s", "zero", [ControllerConfig(disturbance="l1", observer_tau_s=t) for t in tau]),
         "pid_ff": ("ki_pos", "estimate", [ControllerConfig(ki_pos=axes(k), disturbance="wind_model") for k in ki]),
     }
+
+
+def kept_families(out: Path, flown: list[str]) -> dict:
+    """The families of an existing search file that this run does not fly, kept as they are, each
+    with the commit and command that flew it."""
+    if not out.exists():
+        return {}
+    earlier = json.loads(out.read_text())
+    provenance = {"git_commit": earlier.get("git_commit"), "command": earlier.get("command")}
+    return {name: provenance | entry for name, entry in earlier["families"].items() if name not in flown}
+
+
+def check_same_flights(out: Path, report: dict) -> None:
+    """A file that keeps families flown earlier must describe one search: the same env, estimate,
+    episodes and simulator step, and the same PD on them."""
+    earlier = json.loads(out.read_text())
+    for key in ("config", "estimate", "episodes", "compile_step", "pd"):
+        if earlier.get(key) != json.loads(json.dumps(report[key], default=str)):  # as the file holds it
+            raise SystemExit(f"{out}: its {key!r} differs from this run's, so its other families were flown in other "
+                             f"conditions; fly every family (--families {' '.join(families(False))})")
 
 
 def main() -> None:
@@ -88,7 +114,7 @@ def main() -> None:
             scenarios = SWEEP_QUICK.scenarios(scenarios, VALIDATION_SWEEPS[regime].ranges.top_altitude_m)
         report = {"command": command_line(sys.argv), "git_commit": git_commit(), "platform": platform_info(),
                   "regime": regime, "episodes": scenarios.batch_size[0], "compile_step": compile_step,
-                  "estimate": settings, "config": config_to_dict(config), "families": {}}
+                  "estimate": settings, "config": config_to_dict(config), "families": kept_families(out, args.families)}
         pd = None
         for name in args.families:
             field, wind, candidates = families(args.quick)[name]
@@ -103,7 +129,8 @@ def main() -> None:
             rows = [dict(value=getattr(c.controller, field), **c.row(pd)) for c in flown]
             best = select_candidate(rows, int(pd.crashed.sum()))
             report["families"][name] = {"field": field, "base_wind_input": wind, "wall_time_s": wall, "candidates": rows,
-                                        "chosen": best["value"]}
+                                        "chosen": best["value"], "git_commit": report["git_commit"],
+                                        "command": report["command"]}
             print(f"{regime} {name} ({field}, {len(candidates)} candidates x {scenarios.batch_size[0]} episodes, {wall:.0f} s):")
             for r in rows:
                 mark = " <- chosen" if r is best else ""
@@ -111,6 +138,8 @@ def main() -> None:
                       f"({r['improvement_xy_pct']:+.1f} %), z {r['rmse_z']:.3f} m ({r['improvement_z_pct']:+.1f} %), "
                       f"wins {r['wins']}/{r['episodes']}, crashed {r['crashed']}{mark}")
         report["pd"] = pd.row(pd)
+        if report["families"].keys() - set(args.families):
+            check_same_flights(out, report)
         write_json(out, report)
         print(f"wrote {out}")
 

@@ -1,7 +1,7 @@
 """The base controller (envs/controller.py): the paper's PD unchanged by default; each classical
 law against its closed form in a steady wind (PID: no steady-state error; wind feed-forward: exact
 cancellation with the true model; observer: the filter's step response and the drag it converges
-to); the base law is the zero action; the wind estimate's way into the step; the validation
+to; L1: the fraction of a constant force its adaptation law settles at); the base law is the zero action; the wind estimate's way into the step; the validation
 search's per-row batching. Eager, one to four rows, hovering in still turbulence."""
 from __future__ import annotations
 
@@ -152,10 +152,42 @@ def test_observer_filter_is_first_order_and_converges_to_the_drag():
     assert err[0].norm().item() < 0.05 * _drag_n(cfg, wind) / (mass * cfg.controller.kp_pos[0])
 
 
+def test_l1_settles_at_its_closed_form_and_cancels_the_drag():
+    """L1's piecewise-constant adaptation law, under a constant force ``F`` on a vehicle that
+    accelerates under it, settles at ``exp(-a dt) F`` (its one-sample lag; the low-pass filter
+    passes a constant whole), and in flight its force converges to that fraction of the drag, so
+    the vehicle holds the reference to the remaining few per cent of PD's offset."""
+    pole, tau, dt = 5.0, 0.05, 0.01
+    controller = ControllerConfig(disturbance="l1", observer_tau_s=tau, l1_pole_1_s=pole)
+    cfg = _steady(controller)
+    law = make_base_controller(controller, cfg.vehicle, dt)
+    mass, weight = cfg.vehicle.mass_kg, cfg.vehicle.mass_kg * 9.81
+    push = torch.tensor([[1.5, -0.5, 0.8]])  # N, a constant external force on a level vehicle
+    level = torch.eye(3).expand(1, 3, 3)
+    state = law.init_state(1, torch.device("cpu"))
+    ref = Reference(*(torch.zeros(1, 3),) * 4, torch.zeros(1, 1), torch.zeros(1, 1))
+    for k in range(0, 301):
+        vel = push / mass * (k * dt)  # the thrust holds the weight: the push alone accelerates it
+        x = ControlInputs(torch.zeros(1, 3), vel, level, torch.zeros(1, 3), ref, torch.zeros(1, 3),
+                          torch.full((1, 1), weight), None, torch.ones(1, 1, dtype=torch.bool), k == 0)
+        _, state = law(x, state)
+        if k == 0:
+            assert torch.equal(state["vel_hat"], vel)  # the predictor starts on the velocity it reads
+    torch.testing.assert_close(state["force_hat"], push * math.exp(-pole * dt), rtol=1e-4, atol=1e-5)
+
+    env = QuadWindEnv(cfg, batch_size=[1])
+    err = _fly_hover(env)
+    drag = _drag_n(cfg, _mean_wind_ne(env)[0].norm().item())
+    assert env.state["base", "force_hat"][0, :2].norm().item() == pytest.approx(math.exp(-pole * dt) * drag, rel=0.02)
+    pd_offset = drag / (mass * cfg.controller.kp_pos[0])
+    assert err[0].norm().item() < 0.1 * pd_offset
+
+
 @pytest.mark.parametrize("controller", [ControllerConfig(ki_pos=(1.0, 1.0, 1.0)),
                                         ControllerConfig(disturbance="observer"),
+                                        ControllerConfig(disturbance="l1"),
                                         ControllerConfig(ki_pos=(1.0, 1.0, 1.0), disturbance="wind_model")],
-                         ids=["pid", "observer", "pid_ff"])
+                         ids=["pid", "observer", "l1", "pid_ff"])
 def test_zero_action_is_the_base_law(controller):
     """The residual policy's zero action applies the base law's wrench exactly, whatever the law;
     the law's state restarts at a reset."""
@@ -170,10 +202,12 @@ def test_zero_action_is_the_base_law(controller):
         assert torch.equal(td["cmd_wrench"], law)
     base = env.base_env.state["base"]
     assert any(v.abs().sum() > 0 for v in base.values())
-    env.reset()
+    start = env.reset()
     restarted = env.base_env.state["base"]
     for key, value in restarted.items():
-        torch.testing.assert_close(value, env.base_env.sim.controller.init_state(2, torch.device("cpu"))[key])
+        # L1's predictor starts on the velocity the law reads at the episode's first instant
+        expected = start["nav_vel"] if key == "vel_hat" else env.base_env.sim.controller.init_state(2, torch.device("cpu"))[key]
+        torch.testing.assert_close(value, expected)
 
 
 @pytest.mark.parametrize("source", ["truth", "zero"])
@@ -220,6 +254,7 @@ def test_search_rows_fly_their_own_candidate():
     (dict(integral_limit_m_s=(3.0, 3.0, -1.0)), "integral_limit_m_s"),
     (dict(disturbance="gps"), "disturbance"),
     (dict(observer_tau_s=0.0), "observer_tau_s"),
+    (dict(l1_pole_1_s=0.0), "l1_pole_1_s"),
 ])
 def test_bad_classical_settings_name_the_field(change, field):
     with pytest.raises(ValueError, match=field.replace("[", r"\[").replace("]", r"\]")):
@@ -256,12 +291,56 @@ def test_search_recipe_writes_its_table(tmp_path):
 
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run([sys.executable, "recipes/tune_base_controllers.py", "--quick", "--regimes", "horizontal",
-                          "--families", "dob", "--results", str(tmp_path)], cwd=root, capture_output=True, text=True,
+                          "--families", "l1", "--results", str(tmp_path)], cwd=root, capture_output=True, text=True,
                          timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
     result = json.loads((tmp_path / "base_search_horizontal.json").read_text())
-    family = result["families"]["dob"]
+    family = result["families"]["l1"]
     assert [row["value"] for row in family["candidates"]] == [0.2, 0.8]
     assert family["chosen"] == select_candidate(family["candidates"], result["pd"]["crashed"])["value"]
     assert result["pd"]["improvement_xy_pct"] == 0.0 and result["episodes"] == 3
     assert {"command", "git_commit", "platform", "estimate"} <= set(result)
+
+
+def test_search_recipe_keeps_the_families_it_does_not_fly(tmp_path):
+    """A run of some families keeps an existing file's others, and refuses to when that file was
+    flown in other conditions (another env, estimate, episodes, step or PD)."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "recipes" / "tune_base_controllers.py"
+    spec = importlib.util.spec_from_file_location("tune_base_controllers", path)
+    recipe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(recipe)
+    out = tmp_path / "base_search_horizontal.json"
+    assert recipe.kept_families(out, ["l1"]) == {}
+    earlier = {"config": {"kp_pos": [5.0, 5.0, 7.0]}, "estimate": {"ema_tau_s": 1.0}, "episodes": 45, "compile_step": True,
+               "pd": {"rmse_xy": 0.5}, "families": {"dob": {"chosen": 0.02}, "l1": {"chosen": 0.4}},
+               "git_commit": "abc1234", "command": "python recipes/tune_base_controllers.py"}
+    out.write_text(json.dumps(earlier))
+    assert recipe.kept_families(out, ["l1"]) == {"dob": {"chosen": 0.02, "git_commit": "abc1234",
+                                                         "command": "python recipes/tune_base_controllers.py"}}
+    now = {**earlier, "config": {"kp_pos": (5.0, 5.0, 7.0)}}  # tuples, as a config dict holds them
+    recipe.check_same_flights(out, now)
+    with pytest.raises(SystemExit, match="'pd' differs"):
+        recipe.check_same_flights(out, {**now, "pd": {"rmse_xy": 0.6}})
+
+
+def test_the_report_names_the_run_that_flew_each_family():
+    """A search file whose families were flown by different runs says which run flew which."""
+    from quadwind_trl.evaluation.report import classical_section
+
+    def row(value, score):
+        return dict(value=value, validation_score=score, rmse_xy=0.3, improvement_xy_pct=40.0, rmse_z=0.2,
+                    improvement_z_pct=20.0, wins=45, episodes=45, crashed=0)
+
+    search = {"episodes": 45, "command": "python recipes/tune_base_controllers.py --families l1", "git_commit": "bbb2222",
+              "compile_step": True, "pd": {**row(None, 1.0), "rmse_xy": 0.5, "rmse_z": 0.3},
+              "families": {"dob": {"field": "observer_tau_s", "git_commit": "aaa1111", "command": "python recipes/tune_base_controllers.py",
+                                   "candidates": [row(0.02, 0.6), row(0.1, 0.7)]},
+                           "l1": {"field": "observer_tau_s", "git_commit": "bbb2222", "command": "python recipes/tune_base_controllers.py --families l1",
+                                  "candidates": [row(0.02, 0.65), row(0.1, 0.62)]}}}
+    text = classical_section({"horizontal": search}, {})
+    assert "Flown by another run: PD + disturbance observer: `python recipes/tune_base_controllers.py` at `aaa1111`." in text
+    assert "| PD + L1 adaptive | tau (s) = 0.1 **(chosen)** | 0.620 |" in text

@@ -40,10 +40,24 @@ is this cascade with up to two classical additions to its outer loop, each a con
     Tal & Karaman 2021, IEEE T-CST 29(3)): the accelerometer's specific force ``f`` (body) and
     the thrust the rotors are modelled to give (the applied command through the motors'
     first-order lag) give ``F_raw = R (m f - T e3)``, low-pass filtered with time constant
-    ``observer_tau_s``.
+    ``observer_tau_s``; or
+  - ``"l1"``: the adaptive estimate of L1 adaptive control (Hovakimyan & Cao 2010, *L1 Adaptive
+    Control Theory*, SIAM, ch. 3; as augmenting a geometric quadrotor controller in L1Quad, Wu
+    et al. 2025, IEEE T-CST 33(2)): a velocity predictor
+    ``v_hat' = (T_hat R e3 + F_l1) / m - g e3 + A_s (v_hat - v)``, ``A_s = -a I``
+    (``l1_pole_1_s``), integrated over the control step, and the piecewise-constant adaptation
+    law ``F_l1 = -m Phi^-1 exp(A_s dt) (v_hat - v)`` with ``Phi = A_s^-1 (exp(A_s dt) - I)``, i.e.
+    ``F_l1 = -m a / (exp(a dt) - 1) (v_hat - v)``; ``F_l1`` is low-pass filtered with
+    ``observer_tau_s``, as the observer's force is. It reads the navigation velocity, not the
+    accelerometer. Under a constant force ``F`` the law settles at ``exp(-a dt) F`` (95 % at
+    ``a = 5 1/s``, ``dt = 10 ms``): the piecewise-constant law's one-sample lag. Unlike L1Quad, which
+    cancels only the thrust-axis part in its attitude-level law, the whole force is cancelled in
+    the outer loop's desired acceleration, as the observer's is: the cascade turns it into tilt
+    and thrust.
 
-The law's state (the integral, the observer's force and modelled thrust) lives in the
-simulator's state TensorDict (``state["base"]``); nothing here holds state between calls.
+The law's state (the integral; the observer's or L1's force, its modelled thrust and L1's
+predicted velocity) lives in the simulator's state TensorDict (``state["base"]``); nothing here
+holds state between calls.
 """
 from __future__ import annotations
 
@@ -127,6 +141,8 @@ class ClassicalParams:
     # 1 - exp(-dt / observer_tau_s): the force filter's step gain (a [N, 1] tensor: one per row, in a search)
     observer_gain: float | Tensor
     motor_gain: float  # 1 - exp(-dt / motor_time_constant_s): the modelled thrust's step gain
+    l1_pole: float  # 1/s: a, the predictor's A_s = -a I
+    l1_gain: float  # 1/s: a / (exp(a dt) - 1), the adaptation law's Phi^-1 exp(A_s dt)
     mass: float
     dt: float
 
@@ -142,6 +158,8 @@ class ClassicalParams:
             drag_half_rho_cda=VehicleParams.from_config(vehicle, device).drag_half_rho_cda,  # the simulator's own
             observer_gain=-math.expm1(-dt_s / cfg.observer_tau_s),
             motor_gain=-math.expm1(-dt_s / vehicle.motor_time_constant_s),
+            l1_pole=cfg.l1_pole_1_s,
+            l1_gain=cfg.l1_pole_1_s / math.expm1(cfg.l1_pole_1_s * dt_s),
             mass=vehicle.mass_kg,
             dt=dt_s,
         )
@@ -252,16 +270,19 @@ class CascadeController:
         self.pd, self.extra = pd, extra
         self.needs_wind = extra.disturbance == "wind_model"
         self._observer = extra.disturbance == "observer"
+        self._l1 = extra.disturbance == "l1"
 
     def init_state(self, n: int, device: torch.device) -> TensorDict | None:
         state = {}
         if self.extra.ki is not None:
             state["integral"] = torch.zeros(n, 3, device=device)
-        if self._observer:
+        if self._observer or self._l1:
             state["force_hat"] = torch.zeros(n, 3, device=device)
             # the hover thrust: an airborne start has been hovering; on the ground the motors are
             # off until arming and the modelled thrust decays to zero long before
             state["thrust_hat"] = torch.full((n, 1), self.pd.mass * GRAVITY_M_S2, device=device)
+        if self._l1:  # the predictor starts on the first velocity it reads (the episode's first instant)
+            state["vel_hat"] = torch.zeros(n, 3, device=device)
         return TensorDict(state, batch_size=[n]) if state else None
 
     def __call__(self, inputs: ControlInputs, state: TensorDict | None) -> tuple[PDOutput, TensorDict | None]:
@@ -275,7 +296,11 @@ class CascadeController:
             acc_extra = -cancel if acc_extra is None else acc_extra - cancel
         r = x.ref
         out = pd_control(x.pos, x.vel, x.rot, x.omega, r.pos, r.vel, r.acc, r.jerk, r.yaw, r.yaw_rate, self.pd, acc_extra)
-        if state is None or x.first:
+        if state is None:
+            return out, state
+        if x.first:
+            if self._l1:
+                state = unchecked(state.batch_size, {**dict(state.items()), "vel_hat": x.vel})
             return out, state
         return out, self._next_state(x, state, out)
 
@@ -288,7 +313,7 @@ class CascadeController:
             wind = torch.cat((x.wind_ne[..., 1:2], x.wind_ne[..., 0:1], torch.zeros_like(x.wind_ne[..., :1])), -1)
             air_rel_body = matvec(x.rot.transpose(-1, -2), x.vel - wind)
             return matvec(x.rot, drag_force_body(air_rel_body, self.extra.drag_half_rho_cda))
-        if self._observer:
+        if self._observer or self._l1:
             return state["force_hat"]
         return None
 
@@ -302,16 +327,32 @@ class CascadeController:
             # conditional integration: an axis whose actuator limit is active does not wind up
             frozen = torch.cat((out.tilt_saturated, out.tilt_saturated, thrust_saturated), -1)
             new["integral"] = torch.where(frozen | ~x.armed, state["integral"], integral)
-        if self._observer:
+        if self._observer or self._l1:
             thrust_hat = state["thrust_hat"] + ex.motor_gain * (x.thrust_applied - state["thrust_hat"])
-            force = ex.mass * x.specific_force  # the thrust acts along body z alone: subtracted there only
-            body = torch.cat((force[..., :2], force[..., 2:] - thrust_hat), -1)
-            raw = matvec(x.rot, body)
+            if self._observer:
+                force = ex.mass * x.specific_force  # the thrust acts along body z alone: subtracted there only
+                body = torch.cat((force[..., :2], force[..., 2:] - thrust_hat), -1)
+                raw = matvec(x.rot, body)
+            else:
+                raw, new["vel_hat"] = self._l1_adaptation(x, state, thrust_hat)
             force_hat = state["force_hat"] + ex.observer_gain * (raw - state["force_hat"])
-            # on the ground before arming the accelerometer reads the ground's reaction: no estimate
+            # on the ground before arming the accelerometer reads the ground's reaction (and a held
+            # vehicle's velocity tells nothing): no estimate
             new["force_hat"] = torch.where(x.armed, force_hat, state["force_hat"])
             new["thrust_hat"] = thrust_hat
         return unchecked(state.batch_size, new)
+
+    def _l1_adaptation(self, x: ControlInputs, state: TensorDict, thrust_hat: Tensor) -> tuple[Tensor, Tensor]:
+        """L1's unfiltered force now (``[N, 3]`` N, world) and the velocity it predicts for the
+        next instant (module docstring), under the thrust modelled now; until the motors arm the
+        predictor restarts on the measured velocity."""
+        ex = self.extra
+        error = state["vel_hat"] - x.vel
+        force = -(ex.mass * ex.l1_gain) * error  # the piecewise-constant adaptation law
+        thrust_acc = x.rot[..., :, 2] * (thrust_hat / ex.mass)
+        acc = thrust_acc + force / ex.mass - ex.l1_pole * error
+        acc = torch.cat((acc[..., :2], acc[..., 2:] - GRAVITY_M_S2), -1)
+        return force, torch.where(x.armed, state["vel_hat"] + ex.dt * acc, x.vel)
 
 
 def make_base_controller(cfg: ControllerConfig, vehicle: VehicleConfig, dt_s: float,

@@ -743,7 +743,8 @@ def sensing_presets_section(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-FAMILY_LABEL = {"pid": "PD + integral (PID)", "dob": "PD + disturbance observer", "pid_ff": "PD + integral + wind feed-forward"}
+FAMILY_LABEL = {"pid": "PD + integral (PID)", "dob": "PD + disturbance observer", "l1": "PD + L1 adaptive",
+                "pid_ff": "PD + integral + wind feed-forward"}
 FIELD_LABEL = {"ki_pos": "K_i (1/s^3)", "observer_tau_s": "tau (s)"}
 POLICY_KINDS = (("wind-aware RL", "estimate"), ("trained-blind RL", "zero"), ("trained-oracle RL", "truth"))
 
@@ -769,7 +770,7 @@ def _base_note(manifest: dict) -> str:
         return ""
     controller = manifest["env_spec"]["env_config"]["controller"]
     parts = ["integral"] if any(controller.get("ki_pos", ())) else []
-    parts += [{"observer": "disturbance observer", "wind_model": "wind feed-forward"}[controller["disturbance"]]] if (
+    parts += [{"observer": "disturbance observer", "l1": "L1 adaptive", "wind_model": "wind feed-forward"}[controller["disturbance"]]] if (
         controller.get("disturbance", "none") != "none") else []
     return f" (against its base, PD + {' + '.join(parts)})"
 
@@ -794,7 +795,13 @@ def classical_section(searches: dict[str, dict], manifests: dict[str, dict]) -> 
         lines += [f"### {regime.capitalize()} validation sweep ({search['episodes']} episodes)", "",
                   f"`{search['command']}` at `{search['git_commit']}`, "
                   f"{'compiled' if search.get('compile_step') else 'eager'} step. PD: xy {pd['rmse_xy']:.3f} m, "
-                  f"z {pd['rmse_z']:.3f} m, score {pd['validation_score']:.3f} m.", "",
+                  f"z {pd['rmse_z']:.3f} m, score {pd['validation_score']:.3f} m."]
+        others = {family: block for family, block in search["families"].items()
+                  if block.get("git_commit", search["git_commit"]) != search["git_commit"]}
+        if others:  # families a later run flew beside the file's (the same env and episodes)
+            lines.append("Flown by another run: " + "; ".join(f"{FAMILY_LABEL.get(f, f)}: `{b['command']}` at `{b['git_commit']}`"
+                                                              for f, b in others.items()) + ".")
+        lines += ["",
                   "| controller | searched value | score (m) | xy RMSE (m) | xy vs PD | z RMSE (m) | z vs PD | wins | crashed |",
                   "|---|---|---|---|---|---|---|---|---|"]
         for family, block in search["families"].items():
