@@ -74,12 +74,21 @@ def kept_families(out: Path, flown: list[str]) -> dict:
     return {name: provenance | entry for name, entry in earlier["families"].items() if name not in flown}
 
 
+def _known(now, earlier):
+    """``now`` without the dict keys ``earlier`` lacks, at any depth: settings added to the config
+    since the earlier file was written (at their defaults, which leave every earlier law as it was)."""
+    if isinstance(now, dict) and isinstance(earlier, dict):
+        return {k: _known(v, earlier[k]) for k, v in now.items() if k in earlier}
+    return now
+
+
 def check_same_flights(out: Path, report: dict) -> None:
     """A file that keeps families flown earlier must describe one search: the same env, estimate,
     episodes and simulator step, and the same PD on them."""
     earlier = json.loads(out.read_text())
     for key in ("config", "estimate", "episodes", "compile_step", "pd"):
-        if earlier.get(key) != json.loads(json.dumps(report[key], default=str)):  # as the file holds it
+        now = json.loads(json.dumps(report[key], default=str))  # as the file holds it
+        if earlier.get(key) != _known(now, earlier.get(key)):
             raise SystemExit(f"{out}: its {key!r} differs from this run's, so its other families were flown in other "
                              f"conditions; fly every family (--families {' '.join(families(False))})")
 

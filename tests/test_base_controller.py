@@ -321,8 +321,11 @@ def test_search_recipe_keeps_the_families_it_does_not_fly(tmp_path):
     out.write_text(json.dumps(earlier))
     assert recipe.kept_families(out, ["l1"]) == {"dob": {"chosen": 0.02, "git_commit": "abc1234",
                                                          "command": "python recipes/tune_base_controllers.py"}}
-    now = {**earlier, "config": {"kp_pos": (5.0, 5.0, 7.0)}}  # tuples, as a config dict holds them
+    # tuples, as a config dict holds them, and a setting added since (absent from the earlier file)
+    now = {**earlier, "config": {"kp_pos": (5.0, 5.0, 7.0), "l1_pole_1_s": 5.0}}
     recipe.check_same_flights(out, now)
+    with pytest.raises(SystemExit, match="'config' differs"):
+        recipe.check_same_flights(out, {**now, "config": {"kp_pos": (5.0, 5.0, 8.0)}})
     with pytest.raises(SystemExit, match="'pd' differs"):
         recipe.check_same_flights(out, {**now, "pd": {"rmse_xy": 0.6}})
 
