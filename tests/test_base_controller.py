@@ -124,24 +124,30 @@ def _steady_wind_ne(cfg: EnvConfig) -> torch.Tensor:
     return torch.stack((mean[1], mean[0]))
 
 
+def _hover_law(controller: ControllerConfig, dt: float):
+    """The steady-hover config of ``controller``, its law at ``dt`` with one row's initial state,
+    and the vehicle's mass and weight."""
+    cfg = _steady(controller)
+    law = make_base_controller(controller, cfg.vehicle, dt)
+    return cfg, law, law.init_state(1, torch.device("cpu")), cfg.vehicle.mass_kg, cfg.vehicle.mass_kg * 9.81
+
+
+def _level_inputs(vel: torch.Tensor, specific_force: torch.Tensor, thrust_n: float, first: bool = False) -> ControlInputs:
+    """What a law reads on one level, armed vehicle at the origin with a zero reference."""
+    ref = Reference(*(torch.zeros(1, 3),) * 4, torch.zeros(1, 1), torch.zeros(1, 1))
+    return ControlInputs(torch.zeros(1, 3), vel, torch.eye(3).expand(1, 3, 3), torch.zeros(1, 3), ref, specific_force,
+                         torch.full((1, 1), thrust_n), None, torch.ones(1, 1, dtype=torch.bool), first)
+
+
 def test_observer_filter_is_first_order_and_converges_to_the_drag():
     """The observer's force follows a constant disturbance as ``1 - exp(-t / tau)`` (one step of the
     filter checked against the closed form), and in flight it converges to the drag the wind
     exerts, so the vehicle holds the reference."""
     tau, dt = 0.2, 0.01
-    controller = ControllerConfig(disturbance="observer", observer_tau_s=tau)
-    cfg = _steady(controller)
-    law = make_base_controller(controller, cfg.vehicle, dt)
-    mass, weight = cfg.vehicle.mass_kg, cfg.vehicle.mass_kg * 9.81
+    cfg, law, state, mass, weight = _hover_law(ControllerConfig(disturbance="observer", observer_tau_s=tau), dt)
     push = torch.tensor([[1.5, -0.5, 0.0]])  # N, a constant external force on a level vehicle
-    level = torch.eye(3).expand(1, 3, 3)
-    state = law.init_state(1, torch.device("cpu"))
-    ref = Reference(*(torch.zeros(1, 3),) * 4, torch.zeros(1, 1), torch.zeros(1, 1))
     for k in range(1, 31):
-        x = ControlInputs(torch.zeros(1, 3), torch.zeros(1, 3), level, torch.zeros(1, 3), ref,
-                          (push + torch.tensor([[0.0, 0.0, weight]])) / mass, torch.full((1, 1), weight), None,
-                          torch.ones(1, 1, dtype=torch.bool), False)
-        _, state = law(x, state)
+        _, state = law(_level_inputs(torch.zeros(1, 3), (push + torch.tensor([[0.0, 0.0, weight]])) / mass, weight), state)
         expected = push * (1.0 - math.exp(-k * dt / tau))
         torch.testing.assert_close(state["force_hat"], expected, rtol=1e-4, atol=1e-5)
 
@@ -158,19 +164,11 @@ def test_l1_settles_at_its_closed_form_and_cancels_the_drag():
     passes a constant whole), and in flight its force converges to that fraction of the drag, so
     the vehicle holds the reference to the remaining few per cent of PD's offset."""
     pole, tau, dt = 5.0, 0.05, 0.01
-    controller = ControllerConfig(disturbance="l1", observer_tau_s=tau, l1_pole_1_s=pole)
-    cfg = _steady(controller)
-    law = make_base_controller(controller, cfg.vehicle, dt)
-    mass, weight = cfg.vehicle.mass_kg, cfg.vehicle.mass_kg * 9.81
+    cfg, law, state, mass, weight = _hover_law(ControllerConfig(disturbance="l1", observer_tau_s=tau, l1_pole_1_s=pole), dt)
     push = torch.tensor([[1.5, -0.5, 0.8]])  # N, a constant external force on a level vehicle
-    level = torch.eye(3).expand(1, 3, 3)
-    state = law.init_state(1, torch.device("cpu"))
-    ref = Reference(*(torch.zeros(1, 3),) * 4, torch.zeros(1, 1), torch.zeros(1, 1))
     for k in range(0, 301):
         vel = push / mass * (k * dt)  # the thrust holds the weight: the push alone accelerates it
-        x = ControlInputs(torch.zeros(1, 3), vel, level, torch.zeros(1, 3), ref, torch.zeros(1, 3),
-                          torch.full((1, 1), weight), None, torch.ones(1, 1, dtype=torch.bool), k == 0)
-        _, state = law(x, state)
+        _, state = law(_level_inputs(vel, torch.zeros(1, 3), weight, first=k == 0), state)
         if k == 0:
             assert torch.equal(state["vel_hat"], vel)  # the predictor starts on the velocity it reads
     torch.testing.assert_close(state["force_hat"], push * math.exp(-pole * dt), rtol=1e-4, atol=1e-5)
