@@ -154,19 +154,22 @@ SWEEP_REGIME = {"horizontal": "horizontal", "vertical": "vertical", "ood": "hori
 
 
 # The classical base controllers flown beside the RL (evaluation.ablation): the paper's PD with
-# integral action, with a disturbance observer, and with wind feed-forward (alone or with the
-# integral) on the estimate the policy sees, on zero (its blind twin) or on the true mean wind (its
-# oracle). Each regime's constants are the ones its validation search chose
+# integral action, with a disturbance observer, with L1 adaptive control, and with wind
+# feed-forward (alone or with the integral) on the estimate the policy sees, on zero (its blind
+# twin) or on the true mean wind (its oracle). Each regime's constants are the ones its validation search chose
 # (recipes/tune_base_controllers.py, results/base_search_<regime>.json; docs/simulator.md,
 # "Classical base controllers"): the integral gain Ki (1/s^3, every axis) of pid and pid_ff, and the
-# observer's filter time constant (s). The out-of-distribution sweep flies the horizontal ones.
+# filter time constants (s) of the observer's and of L1 adaptive control's force. The
+# out-of-distribution sweep flies the horizontal ones.
 CLASSICAL_CHOICES = {
-    "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02},
-    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02},
+    "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.02},
+    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.2},
 }
-CLASSICAL_CONTROLLERS = ("pid", "dob", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff", "pid_ff_blind", "pid_ff_oracle")
+CLASSICAL_CONTROLLERS = ("pid", "dob", "l1", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff", "pid_ff_blind",
+                         "pid_ff_oracle")
 # how tables and figures name them
-CLASSICAL_LABEL = {"pid": "PD + integral", "dob": "PD + disturbance observer", "pd_ff": "PD + wind feed-forward",
+CLASSICAL_LABEL = {"pid": "PD + integral", "dob": "PD + disturbance observer", "l1": "PD + L1 adaptive",
+                   "pd_ff": "PD + wind feed-forward",
                    "pd_ff_blind": "PD + feed-forward, estimate at zero", "pd_ff_oracle": "PD + feed-forward, true wind",
                    "pid_ff": "PID + wind feed-forward", "pid_ff_blind": "PID + feed-forward, estimate at zero",
                    "pid_ff_oracle": "PID + feed-forward, true wind"}
@@ -187,6 +190,8 @@ def classical_controller(regime: str, name: str) -> tuple[dict, str]:
         return changes | {"ki_pos": (chosen["pid_ki"],) * 3}, "zero"
     if name == "dob":
         return changes | {"disturbance": "observer", "observer_tau_s": chosen["dob_tau_s"]}, "zero"
+    if name == "l1":
+        return changes | {"disturbance": "l1", "observer_tau_s": chosen["l1_tau_s"]}, "zero"
     changes["disturbance"] = "wind_model"
     if law == "pid":
         changes["ki_pos"] = (chosen["pid_ff_ki"],) * 3
