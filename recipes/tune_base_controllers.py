@@ -107,6 +107,7 @@ def main() -> None:
     outputs = [results / f"base_search_{regime}.json" for regime in args.regimes]
     hold_for_command(*outputs, what="base-controller search results", hint="wait for it to finish, or choose another --results")
     torch.set_num_threads(args.threads)
+    commit = git_commit()  # before this run writes its (tracked) outputs: a second regime's file is not "dirty"
 
     for regime, out in zip(args.regimes, outputs):
         _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
@@ -121,7 +122,7 @@ def main() -> None:
         scenarios = validation_scenarios(regime, 3 if args.quick else None)
         if args.quick:
             scenarios = SWEEP_QUICK.scenarios(scenarios, VALIDATION_SWEEPS[regime].ranges.top_altitude_m)
-        report = {"command": command_line(sys.argv), "git_commit": git_commit(), "platform": platform_info(),
+        report = {"command": command_line(sys.argv), "git_commit": commit, "platform": platform_info(),
                   "regime": regime, "episodes": scenarios.batch_size[0], "compile_step": compile_step,
                   "estimate": settings, "config": config_to_dict(config), "families": kept_families(out, args.families)}
         pd = None
