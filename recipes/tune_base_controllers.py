@@ -20,7 +20,7 @@ query interval), so the chosen controllers see the worlds the RL sees. Writes
 candidate's score, means, gains over PD and crashes, the chosen value per family, the command,
 commit and platform. A run of some families keeps the others of an existing file, provided that
 file was flown in the same env on the same episodes (each family records the commit and command
-that flew it). The chosen values are copied into ``regimes.CLASSICAL_CONTROLLERS`` by hand,
+that flew it). The chosen values are copied into ``regimes.CLASSICAL_CHOICES`` by hand,
 and docs/simulator.md ("Classical base controllers") shows the tables.
 """
 from __future__ import annotations
