@@ -30,8 +30,8 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-from .operands import operands
-from .tensordicts import entry, unchecked
+from .operands import operands, tracing
+from .tensordicts import entry, select_rows, unchecked
 
 if TYPE_CHECKING:
     from .simulator import QuadSimulator
@@ -69,8 +69,12 @@ def held_control_step(sim: QuadSimulator, task: Task, params: TensorDict, state:
     new = sim.step(params, state, action, wind_ne)
     new_terminated, new_truncated = task.done(params, new)
     new_reward = task.step_reward(params, state, new)
+    if merge:
+        # traced, the graph every compiled result was recorded with; eagerly the same selection
+        # without TensorDict.where's per-leaf overhead
+        new = new.where(running.reshape(-1), state) if tracing() else select_rows(running.reshape(-1), new, state)
     return (
-        new.where(running.reshape(-1), state) if merge else new,
+        new,
         reward + torch.where(running, new_reward, operands(sim.physics_constants.zero, 0.0)),
         steps + running.to(steps.dtype),
         torch.where(running, new_terminated, terminated),
