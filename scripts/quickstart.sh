@@ -7,10 +7,9 @@
 # recipes/reproduce.py (e.g. --full for paper scale).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-python3 -m venv .venv
 # the library alone: the main job needs none of the test extras (Ray, the docs builder, SB3,
 # pytest), which take a third of the install's time; the test command installs them
-.venv/bin/pip install -q --disable-pip-version-check -e .
+bash scripts/install.sh
 mkdir -p runs/quick
 .venv/bin/python recipes/first_flight.py --out runs/quick/first_flight > runs/quick/first_flight.log 2>&1 &
 first_flight=$!
