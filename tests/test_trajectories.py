@@ -119,3 +119,23 @@ def test_dataset_ids_are_checked_against_the_registry(tmp_path):
     _check_trajectory_ids(tmp_path, {"racetrack_h": 1, "figure8_3d": 7})
     with pytest.raises(ValueError, match=r"trajectory ids \{'rounded_square': 10\}.*register the dataset's patterns"):
         _check_trajectory_ids(tmp_path, {"racetrack_h": 1, "rounded_square": 10})
+
+
+def test_a_pattern_is_tabulated_when_an_episode_first_flies_it():
+    """The library differentiates a pattern only when ``schedule`` first meets its id: the other
+    rows stay NaN (a read of one would show), and the filled row is the pattern's own table,
+    padded with its last sample to the library's length."""
+    from quadwind_trl.envs.trajectories.library import TrajectoryLibrary, _tabulate
+
+    cfg = replace(quiet_config().trajectories, horizontal_duration_s=5.0)
+    lib = TrajectoryLibrary(cfg, 0.01)
+    assert torch.isnan(lib.table).all()
+    row = lib.names.index("figure8_h")
+    lib.schedule(trajectory_ids(["figure8_h", "figure8_h"]), torch.full((2,), 20.0))
+    tabulated = ~torch.isnan(lib.table).any(-1).any(-1)
+    assert tabulated.tolist() == [i == row for i in range(len(lib.names))]
+    expected = _tabulate(base.registered_patterns()["figure8_h"](cfg), cfg, 0.01).to(torch.float32)
+    steps = int(lib.pattern_steps[row])
+    assert steps == expected.shape[0] < lib.table.shape[1]
+    assert torch.equal(lib.table[row, :steps], expected)
+    assert torch.equal(lib.table[row, steps:], expected[-1:].expand(lib.table.shape[1] - steps, -1))

@@ -70,6 +70,11 @@ def _with_derivatives(f, order: int):
     return lambda t: top(t)[1]
 
 
+def _table_steps(pattern: Pattern, dt: float) -> int:
+    """The rows of a pattern's table: its control instants."""
+    return int(round(pattern.duration / dt))
+
+
 def _tabulate(pattern: Pattern, cfg: TrajectoryConfig, dt: float) -> Tensor:
     """``[T, 14]`` float64: pos(3) vel(3) acc(3) jerk(3) yaw yaw_rate at ``t = k dt``."""
     rate = _progress_rate(pattern)
@@ -85,7 +90,7 @@ def _tabulate(pattern: Pattern, cfg: TrajectoryConfig, dt: float) -> Tensor:
         return torch.cat((xy, z.reshape(1)))
 
     kinematics = _with_derivatives(position, 3)
-    steps = int(round(pattern.duration / dt))
+    steps = _table_steps(pattern, dt)
     t = torch.arange(steps, dtype=torch.float64) * dt
     chunks = []
     for tc in t.split(40000):
@@ -121,7 +126,11 @@ class TrajectoryLibrary:
     ``traj_id`` of the tables is the pattern of that id.
 
     ``schedule`` is called once per episode (at reset) and ``reference`` every control step;
-    both are batched over sub-envs with different trajectories and altitudes.
+    both are batched over sub-envs with different trajectories and altitudes. A pattern is
+    tabulated the first time ``schedule`` meets its id: differentiating a pattern costs a
+    fraction of a second to a few seconds of CPU, and an env flies a few of the patterns (its
+    regime's, a test's one or two). Every row of the table has its final shape from the start, so
+    a compiled step reads rows filled later as it reads the first ones.
     """
 
     def __init__(
@@ -133,12 +142,12 @@ class TrajectoryLibrary:
         self.align_steps = align_steps  # pattern starts fall on the flight record's grid
         registered = registered_patterns()
         self.names = tuple(registered)
-        tables = [_tabulate(pattern(cfg), cfg, control_dt_s) for pattern in registered.values()]
-        longest = max(t.shape[0] for t in tables)
-        padded = [torch.cat((t, t[-1:].expand(longest - t.shape[0], -1))) for t in tables]
-        # the pattern holds its last sample past its end (never flown: episodes truncate there)
-        self.table = torch.stack(padded).to(torch.float32).to(device)  # [num_patterns, T, 14]
-        self.pattern_steps = torch.tensor([t.shape[0] for t in tables], dtype=torch.int64, device=device)
+        self._patterns = [pattern(cfg) for pattern in registered.values()]
+        steps = [_table_steps(pattern, control_dt_s) for pattern in self._patterns]
+        # [num_patterns, T, 14]; NaN until a row is tabulated (a read before that would show)
+        self.table = torch.full((len(steps), max(steps), 14), torch.nan, dtype=torch.float32, device=device)
+        self._tabulated: set[int] = set()
+        self.pattern_steps = torch.tensor(steps, dtype=torch.int64, device=device)
         # fixed-altitude flights climb to their own altitude first; vertical ones climb in the pattern
         self.fixed_altitude = fixed_altitude_mask(device)
         self.arm_step = int(round(cfg.arm_time_s / control_dt_s))
@@ -147,10 +156,25 @@ class TrajectoryLibrary:
         if self.arm_step % align_steps:
             raise ValueError(f"TrajectoryConfig.arm_time_s={cfg.arm_time_s} must fall on the {align_steps}-step log grid")
 
+    def _tabulate_missing(self, traj_id: Tensor) -> None:
+        """Tabulate the patterns of ``traj_id`` not tabulated yet (a host read of the ids: at a
+        reset, which reads the restarting rows already)."""
+        if len(self._tabulated) == len(self._patterns):
+            return
+        for i in traj_id.unique().tolist():
+            if i in self._tabulated:
+                continue
+            table = _tabulate(self._patterns[i], self.cfg, self.dt)
+            # the pattern holds its last sample past its end (never flown: episodes truncate there)
+            padded = torch.cat((table, table[-1:].expand(self.table.shape[1] - table.shape[0], -1)))
+            self.table[i] = padded.to(torch.float32)
+            self._tabulated.add(i)
+
     def schedule(self, traj_id: Tensor, altitude_m: Tensor) -> tuple[Tensor, Tensor]:
         """``(pattern_start_step, end_step)`` per episode: the control step at which the pattern
         table starts (after arming and, for horizontal flights, the climb) and the step at which
-        the flight ends."""
+        the flight ends. Tabulates the patterns of ``traj_id`` it has not met before."""
+        self._tabulate_missing(traj_id)
         climb_s = torch.where(self.fixed_altitude[traj_id], altitude_m / self.cfg.climb_rate_m_s + self.cfg.climb_blend_s, 0.0)
         start = self.arm_step + torch.ceil(climb_s / self.dt).to(torch.int64)
         start = (start + self.align_steps - 1) // self.align_steps * self.align_steps
