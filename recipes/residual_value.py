@@ -1,6 +1,6 @@
 """What the residual policy adds on a classical base: every training seed's paired ablation of
-the residual trained on that base, against the base alone and the paper's PD, per wind speed and
-flight phase, with the wind estimate's worth on that base.
+the residual trained on that base, against the base alone and the paper's PD, per wind speed,
+pattern and flight phase, with the wind estimate's worth on that base.
 
     python recipes/residual_value.py --base dob
 

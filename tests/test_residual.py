@@ -101,3 +101,33 @@ def test_the_training_table_says_what_a_residual_on_a_classical_base_is_measured
     assert any(r.startswith("| on_pd | ") for r in rows)
     assert any(r.startswith("| on_dob (against its base, PD + disturbance observer) |") for r in rows)
     assert any(r.startswith("| on_pid_ff (against its base, PD + integral + wind feed-forward) |") for r in rows)
+
+
+def test_the_residual_is_compared_per_pattern_flown():
+    """Where the residual helps on one pattern only, the pattern rows say so and the rows of all
+    episodes average the two."""
+    patterns = ["loiter_circle_h", "figure8_h"] * (N // 2)
+    removed = torch.tensor([0.0 if p == "loiter_circle_h" else 0.4 for p in patterns], dtype=torch.float64)
+
+    def on_patterns(result: dict) -> dict:
+        result["episodes_table"]["trajectory"] = patterns
+        return result
+
+    residual = _residual(0.0, 0.0)
+    residual["episodes_table"] |= _rows("aware", (1 - removed) * BASE_XY, BASE_Z)
+    analysis = analyse_residual({"0": on_patterns(residual), "1": on_patterns(_residual(0.1, 0.1))},
+                                on_patterns(_classical()), "dob", resamples=50)
+    by_pattern = analysis["by_trajectory"]
+    # registered order, then every episode
+    assert list(by_pattern) == ["loiter_circle_h", "figure8_h", "all"]
+    assert by_pattern["figure8_h"]["aware_vs_base"]["per_seed"]["0"]["improvement"] == pytest.approx(40.0)
+    assert by_pattern["loiter_circle_h"]["aware_vs_base"]["per_seed"]["0"]["improvement"] == pytest.approx(0.0)
+    assert by_pattern["loiter_circle_h"]["aware_vs_base"]["across_seeds"]["mean"] == pytest.approx(5.0)
+    assert by_pattern["all"]["aware_vs_base"]["per_seed"]["1"]["improvement"] == pytest.approx(10.0)
+
+    from quadwind_trl.evaluation.report import residual_section
+
+    text = residual_section({"command": "c", "git_commit": "abc", "base": "dob", "sweeps": {"horizontal": analysis}})
+    assert "xy by pattern over all wind levels" in text
+    rows = [line for line in text.splitlines() if line.startswith("| figure8_h |")]
+    assert len(rows) == 1 and rows[0].startswith("| figure8_h | +25.0 (+10.0 to +40.0) |")

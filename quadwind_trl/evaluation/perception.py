@@ -32,6 +32,7 @@ from scipy import stats
 from tensordict import TensorDictBase
 from torch import Tensor
 
+from ..envs.trajectories import trajectory_name
 from ..manifest import repo_relative
 from . import paper
 from .ablation import episode_table_from_json, feedforward_comparisons
@@ -73,11 +74,22 @@ def across_seeds(per_seed: Mapping[str, float]) -> dict:
             "t_low": low, "t_high": high}
 
 
-def wind_groups(table: TensorDictBase) -> dict[str, Tensor]:
-    """Episode masks per wind level (keyed as the ablation's ``by_wind``) and ``"all"``."""
-    speed = table["wind_speed_ref_m_s"]
-    groups = {f"{k:g}": speed == k for k in speed.unique(sorted=True).tolist()}
-    groups["all"] = torch.ones_like(speed, dtype=torch.bool)
+# how episodes are grouped: by their mean wind level (keyed as the ablation's ``by_wind``) or by
+# the pattern they fly (keyed by its registered name)
+GROUPINGS = ("wind", "trajectory")
+
+
+def episode_groups(table: TensorDictBase, by: str = "wind") -> dict[str, Tensor]:
+    """Episode masks per group of ``by`` (one of :data:`GROUPINGS`), in sorted order, and ``"all"``."""
+    if by not in GROUPINGS:
+        raise ValueError(f"by={by!r}: expected one of {', '.join(GROUPINGS)}")
+    if by == "wind":
+        values = table["wind_speed_ref_m_s"]
+        groups = {f"{k:g}": values == k for k in values.unique(sorted=True).tolist()}
+    else:
+        values = table["traj_id"]
+        groups = {trajectory_name(k): values == k for k in values.unique(sorted=True).tolist()}
+    groups["all"] = torch.ones_like(values, dtype=torch.bool)
     return groups
 
 
@@ -92,14 +104,14 @@ def _finite(columns: Sequence[Tensor], mask: Tensor) -> list[Tensor] | None:
 
 def seed_values(table: TensorDictBase, column: str = METRIC, resamples: int = 10_000,
                 comparisons: Mapping[str, tuple[str, str]] = COMPARISONS,
-                shares: Mapping[str, str] = SHARES) -> dict[str, dict]:
-    """One seed's episode table: per group of :func:`wind_groups`, the paired summary of every
+                shares: Mapping[str, str] = SHARES, by: str = "wind") -> dict[str, dict]:
+    """One seed's episode table: per group of :func:`episode_groups` (``by``), the paired summary of every
     comparison (default :data:`COMPARISONS`) and every share (default :data:`SHARES`) whose
     controllers it flew, on ``<controller>_<column>`` (None where no episode of the group has them
     all finite)."""
     keys = set(table.keys())
     out: dict[str, dict] = {}
-    for group, mask in wind_groups(table).items():
+    for group, mask in episode_groups(table, by).items():
         row = {}
         for name, (baseline, other) in comparisons.items():
             columns = [f"{baseline}_{column}", f"{other}_{column}"]
@@ -136,12 +148,12 @@ def _check_same_episodes(tables: Mapping[str, TensorDictBase]) -> None:
 
 def summarise_column(tables: Mapping[str, TensorDictBase], column: str, resamples: int = 10_000,
                      comparisons: Mapping[str, tuple[str, str]] = COMPARISONS,
-                     shares: Mapping[str, str] = SHARES) -> dict:
-    """Per group: for each comparison its per-seed summaries, the seed-level statistics of their
+                     shares: Mapping[str, str] = SHARES, by: str = "wind") -> dict:
+    """Per group of :func:`episode_groups` (``by``): for each comparison its per-seed summaries, the seed-level statistics of their
     improvements (:func:`across_seeds`) and the pooled summary; for each share its per-seed values
     and their seed-level statistics."""
-    per_seed = {seed: seed_values(table, column, resamples, comparisons, shares) for seed, table in tables.items()}
-    groups = wind_groups(next(iter(tables.values())))
+    per_seed = {seed: seed_values(table, column, resamples, comparisons, shares, by) for seed, table in tables.items()}
+    groups = episode_groups(next(iter(tables.values())), by)
     out: dict[str, dict] = {}
     for group, mask in groups.items():
         row = {}
@@ -178,12 +190,14 @@ def with_phase_rmse(table: TensorDictBase) -> TensorDictBase:
 
 
 def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000,
-                  comparisons: Mapping[str, tuple[str, str]] = COMPARISONS, shares: Mapping[str, str] = SHARES) -> dict:
+                  comparisons: Mapping[str, tuple[str, str]] = COMPARISONS, shares: Mapping[str, str] = SHARES,
+                  by_trajectory: bool = False) -> dict:
     """The value of perception on one sweep from each seed's ablation results file (``seed ->
     the parsed ablation_<sweep>.json``): per wind level and ``"all"`` (:func:`summarise_column`
-    on :data:`METRIC`, the paper's zeroing share beside), and per flight phase where the files
-    hold phase columns (``<controller>_sse_xy_<phase>`` and ``_samples_<phase>``, :mod:`~quadwind_trl.evaluation.phases`).
-    Other ``comparisons`` and ``shares`` ask other questions of the same files."""
+    on :data:`METRIC`, the paper's zeroing share beside), per flight phase where the files
+    hold phase columns (``<controller>_sse_xy_<phase>`` and ``_samples_<phase>``, :mod:`~quadwind_trl.evaluation.phases`)
+    and, with ``by_trajectory``, per pattern flown. Other ``comparisons`` and ``shares`` ask other
+    questions of the same files."""
     if not results:
         raise ValueError("analyse_sweep: no seeds given")
     sweeps = {r["sweep"] for r in results.values()}
@@ -197,7 +211,7 @@ def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000,
     by_wind = summarise_column(tables, METRIC, resamples, comparisons, shares)
     if "zeroing_share" in shares:  # the paper's own measure, beside ours
         by_wind = _with_paper(by_wind, sweep)
-    return {
+    analysis = {
         "sweep": sweep,
         "metric": METRIC,
         "level": LEVEL,
@@ -210,12 +224,15 @@ def analyse_sweep(results: Mapping[str, dict], resamples: int = 10_000,
             p: torch.cat([t[f"aware_samples_{p}"] for t in tables.values() if f"aware_samples_{p}" in t.keys()]).double().mean().item()
             for p in phases if f"aware_samples_{p}" in keys},
     }
+    if by_trajectory:
+        analysis["by_trajectory"] = summarise_column(tables, METRIC, resamples, comparisons, shares, by="trajectory")
+    return analysis
 
 
 def feedforward_by_wind(classical: dict, seeds: Mapping[str, dict] | None = None, resamples: int = 10_000) -> dict:
     """What the estimate is worth to the wind feed-forward laws (no learning) on one sweep, from
     the classical controllers' results file (``results/classical/ablation_<sweep>.json``): per
-    group of :func:`wind_groups`, ``{law: {value: paired summary}}`` for each comparison of
+    group of :func:`episode_groups`, ``{law: {value: paired summary}}`` for each comparison of
     :func:`~quadwind_trl.evaluation.ablation.feedforward_comparisons`, on :data:`METRIC`.
     Given the seeds' results files of the same sweep, checks that the file flew their episodes."""
     table = episode_table_from_json(classical["episodes_table"])

@@ -575,7 +575,7 @@ def _goal_line(sweep: str, analysis: dict) -> str:
 def residual_section(result: dict) -> str:
     """"The residual on the best classical base" from ``results/residual_<base>.json``
     (``recipes/residual_value.py``): per sweep and seed the residual against its base and PD on
-    both axes, across seeds per wind level and flight phase, and the goal set for the method."""
+    both axes, across seeds per wind level, pattern and flight phase, and the goal set for the method."""
     base = result["base"]
     label = CLASSICAL_LABEL.get(base, base)
     lines = [f"## The residual on the best classical base: {label}", "",
@@ -607,6 +607,13 @@ def residual_section(result: dict) -> str:
                   "|---|" + "---|" * (2 * len(values))]
         lines += [f"| {key} |" + "".join(f" {_seed_cells(row.get(v))} |" for v in values)
                   for key, row in _wind_rows(analysis["by_wind"])]
+        patterns = {k: row for k, row in analysis.get("by_trajectory", {}).items() if k != "all"}
+        if patterns:
+            lines += ["", "xy by pattern over all wind levels (seed mean (range) | 95 % t (seeds)):", "",
+                      "| pattern |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
+                      "|---|" + "---|" * (2 * len(values))]
+            lines += [f"| {pattern} |" + "".join(f" {_seed_cells(row.get(v))} |" for v in values)
+                      for pattern, row in patterns.items()]
         phases = analysis["by_phase"]
         if phases:
             lines += ["", "xy by flight phase over all episodes (seed mean (range) | 95 % t (seeds)):", "",

@@ -7,8 +7,8 @@ observer) is flown by the paired ablation like any policy (``recipes/ablation.py
 rows the two residuals. The classical controllers' file of the same sweep
 (``results/classical/ablation_<sweep>.json``) flew the paper's PD and the base law alone on the
 same episodes. This module joins the two, episode by episode, and asks of them, per seed and
-across seeds (:func:`~quadwind_trl.evaluation.perception.analyse_sweep`), per wind level and
-per flight phase:
+across seeds (:func:`~quadwind_trl.evaluation.perception.analyse_sweep`), per wind level, per
+pattern flown and per flight phase:
 
 * what RL adds over its base (the residual against the zero residual);
 * the residual against the paper's PD (the measure every other table reports);
@@ -89,7 +89,7 @@ def analyse_residual(seeds: Mapping[str, dict], classical: dict, base: str, resa
     if not seeds:
         raise ValueError("analyse_residual: no seeds given")
     joined = {seed: {**result, "episodes_table": joined_episodes(result, classical, base)} for seed, result in seeds.items()}
-    analysis = analyse_sweep(joined, resamples=resamples, comparisons=RESIDUAL_COMPARISONS, shares={})
+    analysis = analyse_sweep(joined, resamples=resamples, comparisons=RESIDUAL_COMPARISONS, shares={}, by_trajectory=True)
     analysis["base"] = base
     analysis["overall"] = {seed: _overall(r["episodes_table"], resamples) for seed, r in joined.items()}
     analysis["zero_residual"] = {seed: zero_residual_check(r, classical, base) for seed, r in seeds.items()}
