@@ -2,6 +2,8 @@
 ablation file with the classical controllers' file, and its statistics."""
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -127,7 +129,11 @@ def test_the_residual_is_compared_per_pattern_flown():
 
     from quadwind_trl.evaluation.report import residual_section
 
-    text = residual_section({"command": "c", "git_commit": "abc", "base": "dob", "sweeps": {"horizontal": analysis}})
+    # as the results file keeps it: keys sorted by name
+    stored = json.loads(json.dumps({"command": "c", "git_commit": "abc", "base": "dob", "sweeps": {"horizontal": analysis}},
+                                   sort_keys=True))
+    text = residual_section(stored)
     assert "xy by pattern over all wind levels" in text
-    rows = [line for line in text.splitlines() if line.startswith("| figure8_h |")]
-    assert len(rows) == 1 and rows[0].startswith("| figure8_h | +25.0 (+10.0 to +40.0) |")
+    rows = [line for line in text.splitlines() if line.startswith(("| loiter_circle_h |", "| figure8_h |"))]
+    assert len(rows) == 2 and rows[0].startswith("| loiter_circle_h | +5.0 (+0.0 to +10.0) |")
+    assert rows[1].startswith("| figure8_h | +25.0 (+10.0 to +40.0) |")

@@ -6,6 +6,7 @@ import json
 import math
 from pathlib import Path
 
+from ..envs.trajectories import trajectory_names
 from ..regimes import CLASSICAL_LABEL, SWEEP_REGIME
 from . import paper
 from .base_search import select_candidate
@@ -607,7 +608,9 @@ def residual_section(result: dict) -> str:
                   "|---|" + "---|" * (2 * len(values))]
         lines += [f"| {key} |" + "".join(f" {_seed_cells(row.get(v))} |" for v in values)
                   for key, row in _wind_rows(analysis["by_wind"])]
-        patterns = {k: row for k, row in analysis.get("by_trajectory", {}).items() if k != "all"}
+        # in the library's registered order: a results file keeps its keys sorted by name
+        by_pattern = analysis.get("by_trajectory", {})
+        patterns = {name: by_pattern[name] for name in trajectory_names() if name in by_pattern}
         if patterns:
             lines += ["", "xy by pattern over all wind levels (seed mean (range) | 95 % t (seeds)):", "",
                       "| pattern |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
