@@ -573,6 +573,14 @@ def _goal_line(sweep: str, analysis: dict) -> str:
             f"episodes won, z no worse): met by {len(met)} of {len(overall)} seeds" + (f" ({', '.join(met)})." if met else "."))
 
 
+def _residual_table(title: str, group: str, rows: list[tuple[str, dict]], values: list[str]) -> list[str]:
+    """One table of the residual section: a row per group, for each of ``values`` its seed mean
+    (range) and t-interval."""
+    return [title, "", f"| {group} |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
+            "|---|" + "---|" * (2 * len(values))] + [
+        f"| {key} |" + "".join(f" {_seed_cells(row.get(v))} |" for v in values) for key, row in rows]
+
+
 def residual_section(result: dict) -> str:
     """"The residual on the best classical base" from ``results/residual_<base>.json``
     (``recipes/residual_value.py``): per sweep and seed the residual against its base and PD on
@@ -603,27 +611,18 @@ def residual_section(result: dict) -> str:
                          f"{worst} | {crashed} |")
         lines += ["", _goal_line(sweep, analysis), ""]
         values = _present(analysis["by_wind"], RESIDUAL_VALUES)
-        lines += ["xy by wind level (% of the first controller's RMSE removed; seed mean (range) | 95 % t (seeds)):", "",
-                  "| U (m/s) |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
-                  "|---|" + "---|" * (2 * len(values))]
-        lines += [f"| {key} |" + "".join(f" {_seed_cells(row.get(v))} |" for v in values)
-                  for key, row in _wind_rows(analysis["by_wind"])]
+        lines += _residual_table("xy by wind level (% of the first controller's RMSE removed; seed mean (range) | 95 % t (seeds)):",
+                                 "U (m/s)", _wind_rows(analysis["by_wind"]), values)
         # in the library's registered order: a results file keeps its keys sorted by name
         by_pattern = analysis.get("by_trajectory", {})
-        patterns = {name: by_pattern[name] for name in trajectory_names() if name in by_pattern}
+        patterns = [(name, by_pattern[name]) for name in trajectory_names() if name in by_pattern]
         if patterns:
-            lines += ["", "xy by pattern over all wind levels (seed mean (range) | 95 % t (seeds)):", "",
-                      "| pattern |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
-                      "|---|" + "---|" * (2 * len(values))]
-            lines += [f"| {pattern} |" + "".join(f" {_seed_cells(row.get(v))} |" for v in values)
-                      for pattern, row in patterns.items()]
-        phases = analysis["by_phase"]
+            lines += [""] + _residual_table("xy by pattern over all wind levels (seed mean (range) | 95 % t (seeds)):",
+                                            "pattern", patterns, values)
+        phases = [(phase, groups["all"]) for phase, groups in analysis["by_phase"].items()]
         if phases:
-            lines += ["", "xy by flight phase over all episodes (seed mean (range) | 95 % t (seeds)):", "",
-                      "| phase |" + "".join(f" {RESIDUAL_VALUES[v]} | 95 % t (seeds) |" for v in values),
-                      "|---|" + "---|" * (2 * len(values))]
-            lines += [f"| {phase} |" + "".join(f" {_seed_cells(groups['all'].get(v))} |" for v in values)
-                      for phase, groups in phases.items()]
+            lines += [""] + _residual_table("xy by flight phase over all episodes (seed mean (range) | 95 % t (seeds)):",
+                                            "phase", phases, values)
         checks = analysis["zero_residual"]
         bitwise = [s for s, c in checks.items() if c["bitwise"]]
         largest = max(c["max_abs_diff_m"]["rmse_xy"] for c in checks.values())
