@@ -105,10 +105,10 @@ def _finite(columns: Sequence[Tensor], mask: Tensor) -> list[Tensor] | None:
 def seed_values(table: TensorDictBase, column: str = METRIC, resamples: int = 10_000,
                 comparisons: Mapping[str, tuple[str, str]] = COMPARISONS,
                 shares: Mapping[str, str] = SHARES, by: str = "wind") -> dict[str, dict]:
-    """One seed's episode table: per group of :func:`episode_groups` (``by``), the paired summary of every
-    comparison (default :data:`COMPARISONS`) and every share (default :data:`SHARES`) whose
-    controllers it flew, on ``<controller>_<column>`` (None where no episode of the group has them
-    all finite)."""
+    """One seed's episode table: per group of :func:`episode_groups` (``by``), the paired summary
+    of every comparison (default :data:`COMPARISONS`) and every share (default :data:`SHARES`)
+    whose controllers it flew, on ``<controller>_<column>`` (None where no episode of the group
+    has them all finite)."""
     keys = set(table.keys())
     out: dict[str, dict] = {}
     for group, mask in episode_groups(table, by).items():
@@ -149,9 +149,9 @@ def _check_same_episodes(tables: Mapping[str, TensorDictBase]) -> None:
 def summarise_column(tables: Mapping[str, TensorDictBase], column: str, resamples: int = 10_000,
                      comparisons: Mapping[str, tuple[str, str]] = COMPARISONS,
                      shares: Mapping[str, str] = SHARES, by: str = "wind") -> dict:
-    """Per group of :func:`episode_groups` (``by``): for each comparison its per-seed summaries, the seed-level statistics of their
-    improvements (:func:`across_seeds`) and the pooled summary; for each share its per-seed values
-    and their seed-level statistics."""
+    """Per group of :func:`episode_groups` (``by``): for each comparison its per-seed summaries,
+    the seed-level statistics of their improvements (:func:`across_seeds`) and the pooled summary;
+    for each share its per-seed values and their seed-level statistics."""
     per_seed = {seed: seed_values(table, column, resamples, comparisons, shares, by) for seed, table in tables.items()}
     groups = episode_groups(next(iter(tables.values())), by)
     out: dict[str, dict] = {}
