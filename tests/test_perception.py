@@ -9,7 +9,8 @@ import torch
 from scipy import stats
 from tensordict import TensorDict
 
-from quadwind_trl.evaluation.perception import analyse_sweep, feedforward_by_wind, t_interval, variant_change
+from quadwind_trl.evaluation.ablation import episode_table_from_json
+from quadwind_trl.evaluation.perception import analyse_sweep, episode_groups, feedforward_by_wind, t_interval, variant_change
 from quadwind_trl.evaluation.phases import PhaseConfig, masked_sse_xy, phase_masks, phase_rmse
 from quadwind_trl.evaluation.report import feedforward_value_table, perception_section
 
@@ -263,3 +264,13 @@ def test_the_feedforward_value_is_paired_per_wind_level_and_rendered_beside_the_
     table = [r for r in rows if r.startswith("| ")]
     assert table[0].count("|") == 5  # U, the policies' value, the estimate's and the true wind's to PID + FF
     assert table[-1].startswith("| all | +20.0 | +25.0 (") and "8/8" in table[-1]
+
+
+def test_episodes_group_by_wind_level_or_pattern_and_nothing_else():
+    table = episode_table_from_json({"trajectory": ["figure8_h", "loiter_circle_h", "figure8_h"], "case_id": [0, 1, 2],
+                                     "wind_speed_ref_m_s": [6.0, 4.0, 6.0]})
+    by_wind, by_pattern = episode_groups(table), episode_groups(table, by="trajectory")
+    assert list(by_wind) == ["4", "6", "all"] and by_wind["6"].tolist() == [True, False, True]
+    assert list(by_pattern) == ["loiter_circle_h", "figure8_h", "all"] and by_pattern["loiter_circle_h"].tolist() == [False, True, False]
+    with pytest.raises(ValueError, match=r"by='phase': expected one of wind, trajectory"):
+        episode_groups(table, by="phase")
