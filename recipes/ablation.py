@@ -24,8 +24,9 @@ the fastest), recorded in the file. ``--verify FILE`` writes nothing: it re-flie
 estimator, flights, simulator, batch layout) and reports, per controller, against the
 reproducibility contract (docs/simulator.md, "Exact replay"): "bitwise (same platform)" on the
 platform the file records, else the distribution of the deviations and whether they stay within
-the cross-platform tolerance (where one was measured: quick horizontal flights) or agree
-statistically (any other); exit
+the cross-platform tolerance (where one was measured: quick horizontal flights) or are
+equivalent to the record within a stated margin (any other: the mean paired difference and its
+interval, per controller); exit
 status 1 where the contract does not hold. A batch is the unit because only the recorded layout
 replays bit for bit (``evaluation.replay.verify_ablation``). ``--resummarize
 FILE...`` flies nothing: it recomputes a file's tables from its own per-episode table with the
@@ -179,7 +180,7 @@ def resummarize(path: Path, commit: str) -> None:
 def verify(args: argparse.Namespace) -> None:
     """Re-fly a results file's batches and report against the contract (docs/simulator.md, "Exact
     replay"): bitwise on the platform that made it, else the deviation distribution and whether
-    the re-flight agrees statistically; exits 1 where the contract does not hold."""
+    the re-flight is equivalent to the record; exits 1 where the contract does not hold."""
     results = json.loads(args.verify.read_text())
     chunks = range(*(int(x) for x in args.chunks.split(":"))) if args.chunks else None
     t0 = time.perf_counter()
