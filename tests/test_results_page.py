@@ -1,0 +1,29 @@
+"""docs/results.md is what ``python recipes/report.py`` renders from the committed result files,
+character for character (its text only: the figures beside it are drawn by the recipe)."""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _recipe():
+    spec = importlib.util.spec_from_file_location("report_recipe", ROOT / "recipes" / "report.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_results_page_renders_from_the_committed_results(tmp_path):
+    """The page from ``results/`` and ``docs/results/`` with the kept policies' manifests (no
+    local ``runs/``) equals the committed page: a change to a section's code that moves a
+    character of the page shows here, and so does a page not regenerated after a recipe ran."""
+    from quadwind_trl.evaluation.report import build_report, policy_runs
+
+    recipe = _recipe()
+    manifests, _ = policy_runs(tmp_path / "runs", ROOT / "results" / "policies")
+    text = build_report(ROOT / "results", ROOT / "docs" / "results", recipe.PREAMBLE, manifests,
+                        summary_figure="figures/results_summary.png")
+    page = (ROOT / "docs" / "results.md").read_text()
+    assert text == page, "docs/results.md differs from its rendering: run python recipes/report.py"
