@@ -23,13 +23,13 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.config import SENSING, SENSOR_PRESETS, EnvConfig, with_sensor_preset
-from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle, summary_lines
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
+from quadwind_trl.studies.error_budget import WINDS, error_budget, on_vehicle, summary_lines
 
 
 def main() -> None:

@@ -23,11 +23,10 @@ import json
 import sys
 from pathlib import Path
 
-from quadwind_trl.evaluation import figures
-from quadwind_trl.evaluation.perception import analyse_sweep, feedforward_by_wind, read_seeds, variant_change
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEPS
+from quadwind_trl.studies.perception import analyse_sweep, feedforward_by_wind, perception_value, read_seeds, variant_change
 
 
 def parse_variant(text: str) -> tuple[str, Path]:
@@ -86,7 +85,7 @@ def main() -> None:
                "seed_counts": {sweep: len(a["seeds"]) for sweep, a in sweeps.items()}, "inputs": inputs,
                "sweeps": sweeps, "variants": variants, "figure": repo_relative(args.figure)}
     write_json(args.out, payload)
-    figures.perception_value(sweeps, args.figure, variants)
+    perception_value(sweeps, args.figure, variants)
     for sweep, a in sweeps.items():
         row = a["by_wind"]["all"].get("aware_vs_trained_blind")
         if row is not None:

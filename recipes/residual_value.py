@@ -20,11 +20,11 @@ import json
 import sys
 from pathlib import Path
 
-from quadwind_trl.evaluation.perception import read_seeds
-from quadwind_trl.evaluation.residual import analyse_residual
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import CLASSICAL_CONTROLLERS, SWEEPS
+from quadwind_trl.studies.perception import read_seeds
+from quadwind_trl.studies.residual import analyse_residual
 
 
 def main() -> None:

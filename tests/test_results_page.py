@@ -19,7 +19,8 @@ def test_results_page_renders_from_the_committed_results(tmp_path):
     """The page from ``results/`` and ``docs/results/`` with the kept policies' manifests (no
     local ``runs/``) equals the committed page: a change to a section's code that moves a
     character of the page shows here, and so does a page not regenerated after a recipe ran."""
-    from quadwind_trl.evaluation.report import build_report, policy_runs
+    from quadwind_trl.studies.report import build_report
+    from quadwind_trl.studies.training import policy_runs
 
     recipe = _recipe()
     manifests, _ = policy_runs(tmp_path / "runs", ROOT / "results" / "policies")
