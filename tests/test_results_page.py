@@ -3,6 +3,7 @@ character for character (its text only: the figures beside it are drawn by the r
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -28,3 +29,19 @@ def test_results_page_renders_from_the_committed_results(tmp_path):
                         summary_figure="figures/results_summary.png")
     page = (ROOT / "docs" / "results.md").read_text()
     assert text == page, "docs/results.md differs from its rendering: run python recipes/report.py"
+
+
+def _github_anchor(heading: str) -> str:
+    """The anchor GitHub gives a heading (where the README's links are followed): lower case,
+    punctuation dropped, each space a hyphen."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_the_readme_links_to_sections_the_results_page_has():
+    """The README states each finding in a sentence or two and links to its section of
+    docs/results.md for the tables: every such link names a heading the page has."""
+    page = (ROOT / "docs" / "results.md").read_text()
+    anchors = {_github_anchor(line.lstrip("#")) for line in page.splitlines() if line.startswith("#")}
+    links = re.findall(r"\(docs/results\.md#([^)]+)\)", (ROOT / "README.md").read_text())
+    assert links, "the README links to no section of docs/results.md"
+    assert [link for link in links if link not in anchors] == []
