@@ -1,6 +1,6 @@
 """The PD baseline's error budget on an evaluation sweep: how much of the tracking error is
 sensor bias no controller can remove, how much is white sensor noise, how much is wind, and what
-the wind-aware policy removes under each sensing (``quadwind_trl/evaluation/error_budget.py``).
+the wind-aware policy removes under each sensing (``quadwind_trl/studies/error_budget.py``).
 
     python recipes/error_budget.py --sweep vertical            # 144 episodes x 9 PD + 3 policy flights
     python recipes/error_budget.py --sweep horizontal --sensors sbas --pd-only --winds full

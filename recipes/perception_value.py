@@ -14,7 +14,7 @@ range and 95 % t-interval, the pooled episode-level interval, the paper's zeroin
 per variant the same and its change against the base seeds; per wind level what the estimate is
 worth to the wind feed-forward laws, from ``--classical``'s files) and
 ``docs/figures/perception_value.png``; ``python recipes/report.py`` renders the section
-"What the estimate is worth" from them (``quadwind_trl/evaluation/perception.py``).
+"What the estimate is worth" from them (``quadwind_trl/studies/perception.py``).
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ runs/h_dob_blind_s0/policy.pt --controllers pd aware trained_blind --results res
 and the classical controllers' file of each sweep (``--classical``, default ``results/classical``),
 which flew the paper's PD and the base alone on the same episodes. Flies nothing. Writes
 ``results/residual_<base>.json``; ``python recipes/report.py`` renders it
-(``quadwind_trl/evaluation/residual.py`` says what is compared).
+(``quadwind_trl/studies/residual.py`` says what is compared).
 """
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ Families (``ControllerConfig``): ``pid`` the integral gain ``Ki`` (all three axe
 clamped at 3 m s), ``dob`` the disturbance observer's filter time constant, ``l1`` the filter time
 constant of L1 adaptive control's force (its predictor pole at the config's default), ``pid_ff``
 the integral gain on top of wind feed-forward from the shipped estimator (``Ki = 0`` is PD with
-feed-forward alone). The candidates of a family fly in one batch (``evaluation.base_search``). Every family
+feed-forward alone). The candidates of a family fly in one batch (``studies.base_search``). Every family
 flies in the env the shipped policy of the regime trained in (its config, its estimate's EMA and
 query interval), so the chosen controllers see the worlds the RL sees. Writes
 ``results/base_search_<regime>.json`` (``--quick``: under ``runs/quick/results``): every

@@ -7,7 +7,7 @@ observer) is flown by the paired ablation like any policy (``recipes/ablation.py
 rows the two residuals. The classical controllers' file of the same sweep
 (``results/classical/ablation_<sweep>.json``) flew the paper's PD and the base law alone on the
 same episodes. This module joins the two, episode by episode, and asks of them, per seed and
-across seeds (:func:`~quadwind_trl.evaluation.perception.analyse_sweep`), per wind level, per
+across seeds (:func:`~quadwind_trl.studies.perception.analyse_sweep`), per wind level, per
 pattern flown and per flight phase:
 
 * what RL adds over its base (the residual against the zero residual);
