@@ -22,8 +22,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Callable, Mapping
 
-SWEEPS = ("horizontal", "vertical", "ood")  # the paired ablation's sweeps, in the order the files are read
-SEARCH_REGIMES = ("horizontal", "vertical")  # the regimes a base-controller search covers
+from ..regimes import SWEEPS, VALIDATION_SWEEPS
 
 
 def read_ablations(folder: Path) -> dict[str, dict]:
@@ -41,7 +40,7 @@ def read_seed_ablations(results_dir: Path) -> dict[str, dict[str, dict]]:
 def read_searches(folder: Path) -> dict[str, dict]:
     """The base-controller validation searches in ``folder``, by regime (those that exist)."""
     return {regime: json.loads((folder / f"base_search_{regime}.json").read_text())
-            for regime in SEARCH_REGIMES if (folder / f"base_search_{regime}.json").exists()}
+            for regime in VALIDATION_SWEEPS if (folder / f"base_search_{regime}.json").exists()}
 
 
 @dataclass(frozen=True)
