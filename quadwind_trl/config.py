@@ -194,7 +194,7 @@ class MonitorConfig:
     # the PD's own attitude loop to overshoot its command in gusts (PD alone is beyond 35 deg
     # 2.5-7 % of the time in the worst episodes)
     tilt_margin_deg: float = 5.0
-    # the diagnosis's "thrust at limit" (evaluation/diagnosis.py, THRUST_SATURATED); hover is 0.4
+    # the diagnosis's "thrust at limit" (studies/diagnosis.py, THRUST_SATURATED); hover is 0.4
     thrust_fraction: float = 0.98
     # m: above the PD's largest height loss in a typical horizontal-sweep episode (2.2 m on
     # average) and far below the policy's in its worst ones (37-57 m; PD's 17-18 m)
@@ -558,7 +558,7 @@ def with_sensing(cfg: EnvConfig, sensing: Sensing) -> EnvConfig:
     filter over noisy, biased sensors); ``"no_bias"`` switches every sensor's bias off (zero
     drive, so also a zero start) and keeps the white noise; ``"true_state"`` makes the PD read
     the simulator state (the sensors, and so the estimator and the policy's sensor channels,
-    are unchanged). The error budget (``evaluation/error_budget.py``) and the PPO recipes'
+    are unchanged). The error budget (``studies/error_budget.py``) and the PPO recipes'
     ``--sensing`` use it."""
     if sensing == "navigation":
         return cfg

@@ -27,16 +27,15 @@ import torch
 from quadwind_trl.envs.scenarios import STABILITY_NAMES
 from quadwind_trl.envs.trajectories import trajectory_name
 from quadwind_trl.estimator import load_estimator
-from quadwind_trl.evaluation import figures
 from quadwind_trl.evaluation.ablation import episode_table, policy_env_config
-from quadwind_trl.evaluation.diagnosis import (OUT_OF_RANGE_Z, SCALAR_INDICATORS, correlations, episode_indicators,
-                                               fly_recorded_layout, group_summary, rank_episodes, reproduction,
-                                               step_diagnostics)
 from quadwind_trl.manifest import (CHECKPOINT_DIR, command_line, git_commit, platform_info, repo_relative, save_atomic,
                                    write_json)
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEPS
 from quadwind_trl.rl.policy import load_policy
+from quadwind_trl.studies.diagnosis import (OUT_OF_RANGE_Z, SCALAR_INDICATORS, correlations, diagnosis_episode,
+                                           diagnosis_groups, episode_indicators, fly_recorded_layout, group_summary,
+                                           rank_episodes, reproduction, step_diagnostics)
 
 
 def flights(sweep: str, recorded: dict, policy: Path, estimator: Path, cache_dir: Path, refly: bool) -> tuple[dict, float]:
@@ -123,7 +122,7 @@ def main() -> None:
             "correlations": correlations(table, indicators),
         }
         row = worst[0]
-        figures.diagnosis_episode(
+        diagnosis_episode(
             diag, row, f"{sweep}: worst episode (row {row}, {trajectory_name(int(scenarios['traj_id'][row]))}, "
             f"U = {float(scenarios['wind_speed_ref_m_s'][row]):g} m/s, intensity {float(scenarios['turb_intensity'][row]):g})",
             args.figures / f"diagnosis_{sweep}_worst.png", OUT_OF_RANGE_Z, obs_clip)
@@ -139,7 +138,7 @@ def main() -> None:
         rep = summary["sweeps"][sweep]["reproduction"]["all"]
         print(f"{sweep}: flights {wall_s:.0f} s; reproduction " + ", ".join(
             f"{n} {r['identical']}/{r['values']} identical (max rel {r['max_relative']:.2g})" for n, r in rep.items()))
-    figures.diagnosis_groups(groups_fig, args.figures / "diagnosis_tails_summary.png")
+    diagnosis_groups(groups_fig, args.figures / "diagnosis_tails_summary.png")
     write_json(args.out, summary)
     print(f"wrote {args.out} and figures in {args.figures}")
 

@@ -1,6 +1,6 @@
 """The PD baseline's error budget on an evaluation sweep: how much of the tracking error is
 sensor bias no controller can remove, how much is white sensor noise, how much is wind, and what
-the wind-aware policy removes under each sensing (``quadwind_trl/evaluation/error_budget.py``).
+the wind-aware policy removes under each sensing (``quadwind_trl/studies/error_budget.py``).
 
     python recipes/error_budget.py --sweep vertical            # 144 episodes x 9 PD + 3 policy flights
     python recipes/error_budget.py --sweep horizontal --sensors sbas --pd-only --winds full
@@ -23,13 +23,13 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.config import SENSING, SENSOR_PRESETS, EnvConfig, with_sensor_preset
-from quadwind_trl.evaluation.error_budget import WINDS, error_budget, on_vehicle, summary_lines
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEP_REGIME, SWEEPS
+from quadwind_trl.studies.error_budget import WINDS, error_budget, on_vehicle, summary_lines
 
 
 def main() -> None:

@@ -22,8 +22,8 @@ import torch
 
 from quadwind_trl.estimator.training import REGIMES, load_estimator_data
 from quadwind_trl.evaluation.estimation import trailing_mean_floor
-from quadwind_trl.evaluation.estimation_experiments import experiments_markdown
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, repo_relative
+from quadwind_trl.studies.estimation_experiments import experiments_markdown
 
 EXPERIMENTS = Path("results/experiments/estimator")
 FLOOR_LENGTHS = (60, 100, 300, 600, 1200, 3000)  # samples: the window, the trailing means tried, the whole flight

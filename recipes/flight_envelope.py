@@ -22,9 +22,10 @@ import torch
 from quadwind_trl.config import EnvConfig, config_to_dict
 from quadwind_trl.envs.envelope import flight_envelope
 from quadwind_trl.envs import make_scenarios
-from quadwind_trl.evaluation.envelope import (
-    GUST_SIGMAS, airspeed_demand, design_row, design_table, edge_table, edge_wind_speed, envelope_figure, first_not_held,
-    hold_check, pattern_speed, sweep_cells, sweep_table,
+from quadwind_trl.evaluation.envelope import GUST_SIGMAS, airspeed_demand, pattern_speed
+from quadwind_trl.studies.envelope import (
+    design_row, design_table, edge_table, edge_wind_speed, envelope_figure, first_not_held, hold_check, sweep_cells,
+    sweep_table,
 )
 from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
 from quadwind_trl.outputs import hold_for_command

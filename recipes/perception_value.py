@@ -14,7 +14,7 @@ range and 95 % t-interval, the pooled episode-level interval, the paper's zeroin
 per variant the same and its change against the base seeds; per wind level what the estimate is
 worth to the wind feed-forward laws, from ``--classical``'s files) and
 ``docs/figures/perception_value.png``; ``python recipes/report.py`` renders the section
-"What the estimate is worth" from them (``quadwind_trl/evaluation/perception.py``).
+"What the estimate is worth" from them (``quadwind_trl/studies/perception.py``).
 """
 from __future__ import annotations
 
@@ -23,11 +23,10 @@ import json
 import sys
 from pathlib import Path
 
-from quadwind_trl.evaluation import figures
-from quadwind_trl.evaluation.perception import analyse_sweep, feedforward_by_wind, read_seeds, variant_change
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import SWEEPS
+from quadwind_trl.studies.perception import analyse_sweep, feedforward_by_wind, perception_value, read_seeds, variant_change
 
 
 def parse_variant(text: str) -> tuple[str, Path]:
@@ -86,7 +85,7 @@ def main() -> None:
                "seed_counts": {sweep: len(a["seeds"]) for sweep, a in sweeps.items()}, "inputs": inputs,
                "sweeps": sweeps, "variants": variants, "figure": repo_relative(args.figure)}
     write_json(args.out, payload)
-    figures.perception_value(sweeps, args.figure, variants)
+    perception_value(sweeps, args.figure, variants)
     for sweep, a in sweeps.items():
         row = a["by_wind"]["all"].get("aware_vs_trained_blind")
         if row is not None:

@@ -12,8 +12,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from quadwind_trl.evaluation.figures import learning_curves, results_summary
-from quadwind_trl.evaluation.report import build_report, page_summary_rows, policy_runs, read_ablations
+from quadwind_trl.evaluation.figures import learning_curves
+from quadwind_trl.studies.report import build_report
+from quadwind_trl.studies.section import read_ablations
+from quadwind_trl.studies.summary import page_summary_rows, results_summary
+from quadwind_trl.studies.training import policy_runs
 from quadwind_trl.outputs import hold_for_command
 
 PREAMBLE = """# Results: ours beside the paper's

@@ -11,7 +11,7 @@ runs/h_dob_blind_s0/policy.pt --controllers pd aware trained_blind --results res
 and the classical controllers' file of each sweep (``--classical``, default ``results/classical``),
 which flew the paper's PD and the base alone on the same episodes. Flies nothing. Writes
 ``results/residual_<base>.json``; ``python recipes/report.py`` renders it
-(``quadwind_trl/evaluation/residual.py`` says what is compared).
+(``quadwind_trl/studies/residual.py`` says what is compared).
 """
 from __future__ import annotations
 
@@ -20,11 +20,11 @@ import json
 import sys
 from pathlib import Path
 
-from quadwind_trl.evaluation.perception import read_seeds
-from quadwind_trl.evaluation.residual import analyse_residual
 from quadwind_trl.manifest import command_line, git_commit, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import CLASSICAL_CONTROLLERS, SWEEPS
+from quadwind_trl.studies.perception import read_seeds
+from quadwind_trl.studies.residual import analyse_residual
 
 
 def main() -> None:

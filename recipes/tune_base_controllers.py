@@ -2,7 +2,7 @@
 on a grid, flown on the regime's validation sweep (the trainer's 45 horizontal, 48 vertical
 episodes; never a test sweep) and scored as the trainer scores a policy (mean RMSE plus the mean
 of the worst tenth; lower is better); a family keeps its lowest score among the candidates that
-crash no more often than PD (``evaluation.base_search.select_candidate``).
+crash no more often than PD (``studies.base_search.select_candidate``).
 
     python recipes/tune_base_controllers.py                      # both regimes, every family
     python recipes/tune_base_controllers.py --regimes horizontal --families pid
@@ -13,7 +13,7 @@ Families (``ControllerConfig``): ``pid`` the integral gain ``Ki`` (all three axe
 clamped at 3 m s), ``dob`` the disturbance observer's filter time constant, ``l1`` the filter time
 constant of L1 adaptive control's force (its predictor pole at the config's default), ``pid_ff``
 the integral gain on top of wind feed-forward from the shipped estimator (``Ki = 0`` is PD with
-feed-forward alone). The candidates of a family fly in one batch (``evaluation.base_search``). Every family
+feed-forward alone). The candidates of a family fly in one batch (``studies.base_search``). Every family
 flies in the env the shipped policy of the regime trained in (its config, its estimate's EMA and
 query interval), so the chosen controllers see the worlds the RL sees. Writes
 ``results/base_search_<regime>.json`` (``--quick``: under ``runs/quick/results``): every
@@ -37,7 +37,6 @@ import torch
 from quadwind_trl.config import ControllerConfig, config_to_dict
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.evaluation.ablation import policy_compile_step, policy_env_config
-from quadwind_trl.evaluation.base_search import fly_candidates, select_candidate
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.quick import SWEEP_QUICK
@@ -45,6 +44,7 @@ from quadwind_trl.regimes import VALIDATION_SWEEPS
 from quadwind_trl.rl.envs import policy_env_settings
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.policy import load_policy
+from quadwind_trl.studies.base_search import fly_candidates, select_candidate
 
 KI_GRID = (0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)  # 1/s^3, every axis
 # s; down to two control steps: the horizontal search's best was its smallest value at 0.05 s

@@ -12,10 +12,10 @@ import torch
 
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.evaluation.ablation import episode_table, episode_table_from_json, fly_controllers, summarize_ablation
-from quadwind_trl.evaluation.report import perception_tables
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.evaluation.statistics import paired_summary
+from quadwind_trl.studies.paired_ablation import perception_tables
 from quadwind_trl.quick import SWEEP_QUICK
 from quadwind_trl.regimes import SWEEPS, classical_controller
 from quadwind_trl.validation import load_checkpoint
@@ -96,7 +96,7 @@ def test_trained_blind_refuses_a_policy_that_saw_the_wind_or_flew_another_vehicl
 
 
 def test_seed_table_reports_every_seed_and_the_mean_range_and_t_interval():
-    from quadwind_trl.evaluation.report import seeds_section
+    from quadwind_trl.studies.seeds import seeds_section
 
     def result(aware: float, blind: float) -> dict:
         block = {"aware": {"improvement": aware, "wins": 200, "n": 225}, "trained_blind": {"improvement": blind, "wins": 190, "n": 225},

@@ -18,7 +18,7 @@ from quadwind_trl.envs.controller import (ClassicalParams, ControlInputs, Contro
                                           pd_control)
 from quadwind_trl.envs.simulator import QuadSimulator
 from quadwind_trl.envs.trajectories.library import Reference
-from quadwind_trl.evaluation.base_search import fly_candidates, per_row_controller
+from quadwind_trl.studies.base_search import fly_candidates, per_row_controller
 from quadwind_trl.keys import BASE_WIND_KEY
 from quadwind_trl.rl.envs import make_env
 from quadwind_trl.transforms import BaseWindInput
@@ -285,7 +285,7 @@ def test_search_recipe_writes_its_table(tmp_path):
     import sys
     from pathlib import Path
 
-    from quadwind_trl.evaluation.base_search import select_candidate
+    from quadwind_trl.studies.base_search import select_candidate
 
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run([sys.executable, "recipes/tune_base_controllers.py", "--quick", "--regimes", "horizontal",
@@ -330,7 +330,7 @@ def test_search_recipe_keeps_the_families_it_does_not_fly(tmp_path):
 
 def test_the_report_names_the_run_that_flew_each_family():
     """A search file whose families were flown by different runs says which run flew which."""
-    from quadwind_trl.evaluation.report import classical_section
+    from quadwind_trl.studies.base_search import classical_section
 
     def row(value, score):
         return dict(value=value, validation_score=score, rmse_xy=0.3, improvement_xy_pct=40.0, rmse_z=0.2,

@@ -66,7 +66,7 @@ def test_results_page_opens_with_the_summary_of_the_committed_results():
     """docs/results.md starts with the at-a-glance table and figure, rendered by recipes/report.py
     from results/ (one row per claim, the shipped policy beside the seeds, the paper and the best
     classical controller)."""
-    from quadwind_trl.evaluation.report import page_summary_rows, summary_section
+    from quadwind_trl.studies.summary import page_summary_rows, summary_section
 
     rows = page_summary_rows(ROOT / "results")
     assert [r["label"] for r in rows][:3] == ["horizontal xy", "vertical xy", "vertical z"]

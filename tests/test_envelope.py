@@ -12,9 +12,8 @@ from quadwind_trl.config import GRAVITY_M_S2, ControllerConfig, EnvConfig, Vehic
 from quadwind_trl.envs import make_scenarios
 from quadwind_trl.envs.envelope import flight_envelope, trim_thrust, trim_tilt
 from quadwind_trl.envs.vehicle import VehicleParams
-from quadwind_trl.evaluation.envelope import (
-    GUST_SIGMAS, airspeed_demand, edge_wind_speed, first_not_held, hold_check, sweep_cells,
-)
+from quadwind_trl.evaluation.envelope import GUST_SIGMAS, airspeed_demand
+from quadwind_trl.studies.envelope import edge_wind_speed, first_not_held, hold_check, sweep_cells
 from quadwind_trl.regimes import HORIZONTAL_RL, HORIZONTAL_SWEEP
 
 STATIC = replace(VehicleConfig(), rotor_aero="static")

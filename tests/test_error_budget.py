@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from quadwind_trl.config import EnvConfig, SensorChannelConfig, with_sensing
-from quadwind_trl.evaluation.error_budget import with_wind
+from quadwind_trl.studies.error_budget import with_wind
 from quadwind_trl.regimes import VERTICAL_SWEEP
 
 

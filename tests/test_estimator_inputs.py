@@ -55,7 +55,7 @@ def test_a_network_with_other_inputs_trains_evaluates_and_flies(short_horizontal
 
 def test_the_experiments_table_names_what_each_run_changed():
     from quadwind_trl.estimator.training import TrainConfig
-    from quadwind_trl.evaluation.estimation_experiments import config_change, experiments_markdown
+    from quadwind_trl.studies.estimation_experiments import config_change, experiments_markdown
 
     shipped = TrainConfig().to_dict()
     # a reference from before the input settings existed: their defaults are its values

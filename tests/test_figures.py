@@ -67,7 +67,7 @@ def test_the_trace_follows_the_middle_episode_of_the_trajectory_at_that_wind(tmp
     wind-aware policy's tracks and errors, against the reference, with their RMSEs."""
     scenarios, results, _ = _sweep("horizontal", ("racetrack_h", "lawnmower_h"))
     drawn = {}
-    monkeypatch.setattr(figures, "_save", lambda fig, path: drawn.setdefault("fig", fig) and path)
+    monkeypatch.setattr(figures, "save_figure", lambda fig, path: drawn.setdefault("fig", fig) and path)
     figures.trace_top_down(scenarios, results, "lawnmower_h", 8.0, tmp_path / "trace.png")
     track, error = drawn["fig"].axes
     row = 7  # lawnmower_h at 8 m/s: rows 6 and 7 (two intensities), the middle one is the second
@@ -98,7 +98,7 @@ def test_learning_curves_draw_a_row_per_regime_and_a_colour_per_kind(tmp_path, m
         if run.name != "ppo_vertical":
             _scalars(run, "eval/improvement_rmse_xy_pct.csv", [(1024, -5.0), (2048, 3.0)])
     drawn = {}
-    monkeypatch.setattr(figures, "_save", lambda fig, path: drawn.setdefault("fig", fig) and path)
+    monkeypatch.setattr(figures, "save_figure", lambda fig, path: drawn.setdefault("fig", fig) and path)
     assert figures.learning_curves(runs, tmp_path / "curves.png") == tmp_path / "curves.png"
     axes = drawn["fig"].axes
     assert len(axes) == 6 and [a.get_title() for a in axes[::3]] == ["horizontal: training reward", "vertical: training reward"]

@@ -1,5 +1,5 @@
 """The package's layers import downwards only (docs/architecture.md): envs -> estimator -> transforms
--> rl -> evaluation, with data (datasets) beside the estimator's training. Each check imports every
+-> rl -> evaluation -> studies, with data (datasets) beside the estimator's training. Each check imports every
 module of one layer in a fresh interpreter and lists what it pulled in from the layers above."""
 import re
 import subprocess
@@ -12,10 +12,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # layer -> (its modules, excluding these, must not load these packages)
 LAYERS = {
-    "envs": ((), ("estimator", "data", "transforms", "rl", "evaluation")),
-    "estimator": (("training",), ("data", "transforms", "rl", "evaluation")),
-    "transforms": ((), ("data", "rl", "evaluation")),
-    "rl": ((), ("data", "evaluation")),
+    "envs": ((), ("estimator", "data", "transforms", "rl", "evaluation", "studies")),
+    "estimator": (("training",), ("data", "transforms", "rl", "evaluation", "studies")),
+    "transforms": ((), ("data", "rl", "evaluation", "studies")),
+    "rl": ((), ("data", "evaluation", "studies")),
+    "evaluation": ((), ("studies",)),
 }
 
 CODE = """

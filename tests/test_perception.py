@@ -10,9 +10,10 @@ from scipy import stats
 from tensordict import TensorDict
 
 from quadwind_trl.evaluation.ablation import episode_table_from_json
-from quadwind_trl.evaluation.perception import analyse_sweep, episode_groups, feedforward_by_wind, t_interval, variant_change
 from quadwind_trl.evaluation.phases import PhaseConfig, masked_sse_xy, phase_masks, phase_rmse
-from quadwind_trl.evaluation.report import feedforward_value_table, perception_section
+from quadwind_trl.evaluation.statistics import t_interval
+from quadwind_trl.studies.perception import (analyse_sweep, episode_groups, feedforward_by_wind, feedforward_value_table,
+                                            perception_section, variant_change)
 
 DT = 0.1  # the 10 Hz record
 SPEED = 10.0  # m/s, the patterns' cruise speed
@@ -220,13 +221,13 @@ def test_the_report_section_renders_every_table(analysis):
 def test_the_figure_draws_each_variant_beside_the_base_seeds(analysis, monkeypatch, tmp_path):
     import matplotlib.pyplot as plt
 
-    from quadwind_trl.evaluation import figures
+    from quadwind_trl.studies import perception as study
 
     variant = analyse_sweep({"0": _seed(0.4, None, False), "1": _seed(0.5, None, False)}, resamples=10)
     drawn = {}
-    monkeypatch.setattr(figures, "_save", lambda fig, path: drawn.setdefault("fig", fig) and path)
-    figures.perception_value({"horizontal": analysis}, tmp_path / "value.png",
-                             {"no_attitude_accel": {"sweeps": {"horizontal": variant}}, "other_sweep_only": {"sweeps": {}}})
+    monkeypatch.setattr(study, "save_figure", lambda fig, path: drawn.setdefault("fig", fig) and path)
+    study.perception_value({"horizontal": analysis}, tmp_path / "value.png",
+                           {"no_attitude_accel": {"sweeps": {"horizontal": variant}}, "other_sweep_only": {"sweeps": {}}})
     value, share = drawn["fig"].axes
     labels = [[t.get_text() for t in panel.get_legend().get_texts()] for panel in (value, share)]
     assert any(t.startswith("no_attitude_accel: wind-aware vs trained blind (n = 2 seeds)") for t in labels[0])

@@ -298,7 +298,8 @@ def test_the_toy_page_shows_what_the_quick_stages_flew_and_trained(tmp_path):
     checks the page without flying or training."""
     from test_figures import _sweep
 
-    from quadwind_trl.evaluation.report import build_report, policy_runs
+    from quadwind_trl.studies.report import build_report
+    from quadwind_trl.studies.training import policy_runs
 
     results, runs = tmp_path / "results", tmp_path / "runs"
     for sweep, trajectories in (("horizontal", ("racetrack_h", "lawnmower_h")), ("vertical", ("figure8_3d",))):

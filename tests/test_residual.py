@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from quadwind_trl.evaluation.residual import analyse_residual, joined_episodes, zero_residual_check
+from quadwind_trl.studies.residual import analyse_residual, joined_episodes, zero_residual_check
 
 N = 6
 PLATFORM = {"cpu": "test", "vector_isa": "AVX2"}
@@ -78,7 +78,7 @@ def test_files_of_other_episodes_or_without_the_base_are_refused():
 
 
 def test_the_report_section_renders_every_seed_the_goal_and_the_check():
-    from quadwind_trl.evaluation.report import residual_section
+    from quadwind_trl.studies.residual import residual_section
 
     analysis = analyse_residual({"0": _residual(0.2, 0.1), "1": _residual(0.3, 0.1)}, _classical(), "dob", resamples=50)
     text = residual_section({"command": "python recipes/residual_value.py --base dob", "git_commit": "abc", "base": "dob",
@@ -92,7 +92,7 @@ def test_the_report_section_renders_every_seed_the_goal_and_the_check():
 
 
 def test_the_training_table_says_what_a_residual_on_a_classical_base_is_measured_against():
-    from quadwind_trl.evaluation.report import training_section
+    from quadwind_trl.studies.training import training_section
 
     def manifest(controller: dict) -> dict:
         return {"command": "python recipes/ppo_horizontal.py", "git_commit": "abc", "frames": 1, "wall_time_s": 60.0,
@@ -127,7 +127,7 @@ def test_the_residual_is_compared_per_pattern_flown():
     assert by_pattern["loiter_circle_h"]["aware_vs_base"]["across_seeds"]["mean"] == pytest.approx(5.0)
     assert by_pattern["all"]["aware_vs_base"]["per_seed"]["1"]["improvement"] == pytest.approx(10.0)
 
-    from quadwind_trl.evaluation.report import residual_section
+    from quadwind_trl.studies.residual import residual_section
 
     # as the results file keeps it: keys sorted by name
     stored = json.loads(json.dumps({"command": "c", "git_commit": "abc", "base": "dob", "sweeps": {"horizontal": analysis}},

@@ -9,9 +9,12 @@ interval, the decomposition and the full paired summary.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
+from typing import Mapping, Sequence
 
 import torch
+from scipy.stats import t as student_t
 from torch import Tensor
 
 from ..rl.paired import improvement, win_rate
@@ -90,3 +93,27 @@ def paired_summary(baseline: Tensor, other: Tensor, resamples: int = 10_000, see
         "wins": wins,
         "win_rate": wins / n,
     }
+
+
+# --- across training seeds: one value per seed, an interval over the seeds ----------------------
+
+
+def t_interval(values: Sequence[float], level: float = 0.95) -> tuple[float, float]:
+    """Student-t interval of the mean of ``values`` (n - 1 degrees of freedom); NaN with fewer
+    than two values."""
+    n = len(values)
+    if n < 2:
+        return math.nan, math.nan
+    x = torch.tensor(values, dtype=torch.float64)
+    half = float(student_t.ppf(0.5 + level / 2, n - 1)) * x.std().item() / math.sqrt(n)
+    return x.mean().item() - half, x.mean().item() + half
+
+
+def across_seeds(per_seed: Mapping[str, float]) -> dict:
+    """Seed count, mean, range and t-interval of the finite seed-level values."""
+    values = [v for v in per_seed.values() if math.isfinite(v)]
+    if not values:
+        return {"n_seeds": 0, "mean": math.nan, "min": math.nan, "max": math.nan, "t_low": math.nan, "t_high": math.nan}
+    low, high = t_interval(values)
+    return {"n_seeds": len(values), "mean": sum(values) / len(values), "min": min(values), "max": max(values),
+            "t_low": low, "t_high": high}

@@ -250,7 +250,7 @@ def build_env(
             ``workers=1``: all rows in one actor). The rows then fly on the CPU.
         controller: a base controller object instead of the one the config chooses (one process
             only; e.g. a validation search flying a gain per row,
-            :mod:`quadwind_trl.evaluation.base_search`).
+            :mod:`quadwind_trl.studies.base_search`).
     """
     if controller is not None and (workers != 1 or workers_on != "local"):
         raise ValueError(f"build_env: a controller object flies in one process; got workers={workers}, "
