@@ -39,6 +39,9 @@ class PPOUpdate(CheckpointParts):
             loss_critic_type=cfg.loss_critic_type, normalize_advantage=cfg.normalize_advantage,
         )  # fmt: skip
         self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=value, average_gae=False)
+        # the critic's inputs beside the actor's (an asymmetric critic's privileged ones), now and next
+        extra = [k for k in value.in_keys if k != "observation"]
+        self.batch_keys = BATCH_KEYS + tuple(extra) + tuple(("next", k) for k in extra)
         self.params = list(self.loss.parameters())
         self.optim = torch.optim.Adam(self.params, lr=cfg.lr, eps=1e-5)  # SB3's Adam eps
         self.return_scale = None
@@ -59,7 +62,7 @@ class PPOUpdate(CheckpointParts):
         cfg = self.cfg
         for group in self.optim.param_groups:  # set every update, so a resumed run follows the schedule
             group["lr"] = cfg.lr if lr is None else lr
-        batch = data.select(*BATCH_KEYS)
+        batch = data.select(*self.batch_keys)
         with torch.no_grad():
             if self.return_scale is not None:
                 self.return_scale(batch)  # the select's leaves are the collector's: set, not written in place
