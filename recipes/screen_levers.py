@@ -30,7 +30,7 @@ from pathlib import Path
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
-from quadwind_trl.rl.screening import LEVERS, ScreenPlan, parse_lever, screen, summarize, table
+from quadwind_trl.rl.screening import LEVERS, ScreenMismatch, ScreenPlan, parse_lever, screen, summarize, table
 
 
 def main() -> None:
@@ -63,7 +63,10 @@ def main() -> None:
     except ValueError as err:
         raise SystemExit(f"error: {err}") from None
     hold_for_command(plan.out, what="lever screen", hint="wait for it to finish, or choose another --out")
-    rows = screen(plan)
+    try:
+        rows = screen(plan)
+    except ScreenMismatch as err:
+        raise SystemExit(f"error: {err}") from None
     command = command_line(sys.argv)
     write_json(plan.out / "screen.json", {
         "command": command, "git_commit": git_commit(), "platform": platform_info(),

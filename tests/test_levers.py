@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 import torch
@@ -285,3 +286,59 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
         check_same_env(payload["env_spec"], replace(spec, memory_frames=1), None)
     check_same_env(spec_to_dict(spec), spec, None)
     assert math.isfinite(manifest["wall_time_s"])
+
+
+# --- the screening recipe -------------------------------------------------------------------------
+
+def test_lever_settings_are_catalogue_names_or_named_recipe_flags():
+    from quadwind_trl.rl.screening import LEVERS, parse_lever
+
+    assert parse_lever("memory4", "horizontal") == ("memory4", ("--memory-frames", "4"))
+    assert parse_lever("mem8=--memory-frames 8", "vertical") == ("mem8", ("--memory-frames", "8"))
+    assert LEVERS["horizontal"]["residual"] == ()
+    with pytest.raises(ValueError, match=r"lever 'memory'; allowed: \[.*'memory4'.*\] or NAME=FLAGS"):
+        parse_lever("memory", "horizontal")
+    with pytest.raises(ValueError, match=r"NAME=FLAGS needs a NAME of letters, digits and _; got 'mem 8'"):
+        parse_lever("mem 8=--memory-frames 8", "horizontal")
+
+
+def test_screen_levers_quick_writes_a_row_per_run_a_table_and_resumes_from_disk(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from test_ppo import ROOT
+
+    out, runs = tmp_path / "screen", tmp_path / "runs"
+
+    def screen(*levers: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, str(ROOT / "recipes" / "screen_levers.py"), "--quick", "--untrained-estimator", "--levers",
+             *levers, "--seeds", "0", "--frames", "512", "--val-episodes", "2", "--resamples", "200", "--out", str(out),
+             "--runs", str(runs)],
+            capture_output=True, text=True, timeout=900, cwd=ROOT, env=dict(os.environ, PYTHONWARNINGS="ignore"))
+
+    first = screen("mem2=--memory-frames 2")
+    assert first.returncode == 0, first.stdout[-2000:] + first.stderr[-4000:]
+    row = json.loads((out / "rows" / "mem2_seed0.json").read_text())
+    assert (row["lever"], row["flags"], row["seed"], row["base"], row["frames"]) == ("mem2", ["--memory-frames", "2"], 0,
+                                                                                    "dob", 512)
+    assert row["extra_flags"] == ["--untrained-estimator"]
+    for axis in ("xy", "z"):
+        v = row["validation"][axis]
+        assert v["episodes"] == 2 and v["ci_low_pct"] <= v["gain_pct"] <= v["ci_high_pct"]
+        assert math.isclose(v["gain_pct"], 100 * (1 - v["policy_mean_m"] / v["base_mean_m"]), rel_tol=1e-9)
+    assert row["wall_s"] >= row["train_wall_s"] > 0
+    policy = load_policy(ROOT / row["policy"] if not Path(row["policy"]).is_absolute() else row["policy"])[1]
+    assert policy["env_spec"]["memory_frames"] == 2 and policy["env_spec"]["env_config"]["controller"]["disturbance"] == "observer"
+    summary = json.loads((out / "screen.json").read_text())["summary"]
+    assert [s["lever"] for s in summary] == ["mem2"] and summary[0]["xy"]["mean_pct"] == row["validation"]["xy"]["gain_pct"]
+    md = (out / "screen.md").read_text()
+    assert "| mem2 | `--memory-frames 2` | 1 |" in md and "| mem2 | 0 |" in md
+    # a second screen finds the run finished on disk and trains nothing
+    again = screen("mem2=--memory-frames 2")
+    assert again.returncode == 0 and "finished earlier" in again.stdout and "training:" not in again.stdout
+    # the same name for other flags is refused before anything trains
+    other = screen("mem2=--memory-frames 3")
+    assert other.returncode == 1 and "error: " in other.stderr and "give the setting another name" in other.stderr
+    assert "training:" not in other.stdout

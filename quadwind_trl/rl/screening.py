@@ -158,24 +158,35 @@ class ScreenRow:
     wall_s: float  # training (all sessions) + scoring
     policy: str
     git_commit: str | None
+    extra_flags: list[str] = field(default_factory=list)
     recipe_args: list[str] = field(default_factory=list)
 
 
+class ScreenMismatch(ValueError):
+    """A row on disk was written for another run than the one a screen asks under its name."""
+
+
 def _finished(path: Path, flags: Sequence[str], plan: ScreenPlan) -> ScreenRow | None:
-    """The row on disk for this run, if one was written for the same flags and frames."""
+    """The row on disk for this run, if one was written for the same run (flags, frames, regime,
+    base, flags given to every run); a :class:`ScreenMismatch` if it was written for another."""
     if not path.exists():
         return None
     row = ScreenRow(**json.loads(path.read_text()))
-    if list(row.flags) != list(flags) or row.frames < plan.frames or (row.regime, row.base) != (plan.regime, plan.base):
-        raise ValueError(f"{path} holds a run of {row.regime}/{row.base} with flags {row.flags} for {row.frames} frames; "
-                         f"this screen asks {plan.regime}/{plan.base}, {list(flags)}, {plan.frames} frames: give the "
-                         "setting another name, or another --out")
+    saved = (row.regime, row.base, list(row.flags), list(row.extra_flags), row.frames)
+    asked = (plan.regime, plan.base, list(flags), list(plan.extra_flags), plan.frames)
+    if saved != asked:
+        raise ScreenMismatch(f"{path} holds a run of (regime, base, flags, flags of every run, frames) = {saved}; this "
+                             f"screen asks {asked} under that name: give the setting another name, or another --out")
     return row
 
 
 def screen(plan: ScreenPlan, log=print) -> list[ScreenRow]:
     """Every (lever setting, seed) of ``plan``: its row from disk when finished, else trained (from
-    its checkpoint when one is there) and scored; one JSON row per run written as it finishes."""
+    its checkpoint when one is there) and scored; one JSON row per run written as it finishes.
+    Rows on disk that another run wrote under a name of ``plan`` are refused before anything trains."""
+    for name, flags in plan.levers:
+        for seed in plan.seeds:
+            _finished(plan.row_path(name, seed), flags, plan)
     rows = []
     for name, flags in plan.levers:
         for seed in plan.seeds:
@@ -194,7 +205,7 @@ def screen(plan: ScreenPlan, log=print) -> list[ScreenRow]:
             row = ScreenRow(lever=name, flags=list(flags), seed=seed, regime=plan.regime, base=plan.base,
                             frames=manifest["frames"], validation=validation, train_wall_s=manifest["wall_time_s"],
                             wall_s=round(manifest["wall_time_s"] + validation["eval_s"], 1), policy=repo_relative(policy),
-                            git_commit=git_commit(), recipe_args=argv)
+                            git_commit=git_commit(), extra_flags=list(plan.extra_flags), recipe_args=argv)
             write_json(path, asdict(row))
             log(f"[{name} seed {seed}] validation xy {validation['xy']['gain_pct']:+.1f} % "
                 f"[{validation['xy']['ci_low_pct']:+.1f}, {validation['xy']['ci_high_pct']:+.1f}], z "
