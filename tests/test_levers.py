@@ -98,6 +98,11 @@ def test_each_base_law_offers_the_channels_of_its_state():
     spec = RLEnvSpec(config=config, base_wind_input=wind, base_state_inputs=("ff", "base_force_U"))
     assert spec.base_state_inputs == ("base_force_U", "base_ff_fwd", "base_ff_left", "base_ff_U")
     assert spec.observation_channels == OBSERVATION_CHANNELS + spec.base_state_inputs
+    # "all": every channel the base has; refused where it has none
+    assert RLEnvSpec(config=config, base_wind_input=wind, base_state_inputs=("all",)).base_state_inputs == \
+        base_state_channels(config)
+    with pytest.raises(ValueError, match=r"base_state_inputs=\('all',\): this base controller keeps no state"):
+        RLEnvSpec(base_state_inputs=("all",))
 
 
 def test_the_ppo_recipes_refuse_bad_levers_before_any_output(tmp_path):

@@ -101,7 +101,7 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--base-state-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
                    help=f"the base controller's state the policy reads beside its 23 inputs, in training and whenever it "
                         f"flies: groups ({base_groups}) or channel names, those the --base-controller has (dob, l1: force "
-                        "thrust ff; l1 also vel_err; pid: integral ff); default: none")
+                        "thrust ff; l1 also vel_err; pid: integral ff), or all: every one it has; default: none")
     priv_groups = "; ".join(f"{name}: {' '.join(channels)}" for name, channels in PRIVILEGED_GROUPS.items())
     p.add_argument("--privileged-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
                    help=f"simulator truth the critic alone reads, at training time only (an asymmetric actor-critic; the "

@@ -77,6 +77,8 @@ WorkersOn = Literal["local", "ray"]
 WORKERS_ON = ("local", "ray")  # where build_env's collection workers run
 DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
+# RLEnvSpec.base_state_inputs: every channel of the selected base law's state
+BASE_STATE_ALL = "all"
 # s: the estimator at every 10 Hz log tick (what every policy trained before the setting existed saw)
 DEFAULT_ESTIMATE_EVERY_S = 0.1
 
@@ -123,7 +125,8 @@ class RLEnvSpec:
     # oracle) or "zero" (its blind twin); unused by every other base controller
     base_wind_input: WindInput = "estimate"
     # the base controller's state the policy reads after the 23 channels (keys.BASE_STATE_CHANNELS
-    # names the selected base law has: its force estimate, integral, feed-forward, ...); () the paper's inputs
+    # names or groups the selected base law has: its force estimate, integral, feed-forward, ...; "all":
+    # every one it has); () the paper's inputs
     base_state_inputs: tuple[str, ...] = ()
     # simulator truth an asymmetric critic reads at training time (keys.PRIVILEGED_CHANNELS: true mean
     # wind, turbulence, true errors), never the actor; only the training env computes it
@@ -160,6 +163,12 @@ class RLEnvSpec:
                              "(simulator truth): the actor never reads them; allowed for the critic only, in "
                              "privileged_inputs (--privileged-inputs)")
         have = base_state_channels(self.env_config) if base else ()
+        if not isinstance(base, str) and BASE_STATE_ALL in base:  # every channel the selected base law has
+            if not have:
+                raise ValueError(f"RLEnvSpec.base_state_inputs={tuple(base)!r}: this base controller keeps no state "
+                                 "(the paper's PD, the wind feed-forward law); allowed: a base with integral action or "
+                                 "a force estimate (--base-controller pid, dob, l1, ...)")
+            base = tuple(n for n in base if n != BASE_STATE_ALL) + have
         # stored as the tuple of channels, in catalogue order (a JSON list, or a group name, is the same setting)
         object.__setattr__(self, "base_state_inputs",
                            named_channels(base, BASE_STATE_GROUPS, "RLEnvSpec.base_state_inputs", allowed=have))

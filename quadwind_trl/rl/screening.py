@@ -39,10 +39,10 @@ TRAILING_ESTIMATOR = {"horizontal": "results/experiments/estimator/trailing_10_3
 def _levers(regime: str) -> dict[str, tuple[str, ...]]:
     return {
         "residual": (),  # the residual as the recipes train it: the reference row
-        "base_state": ("--base-state-inputs", "force", "thrust", "ff"),  # the observer's state (dob, l1)
+        "base_state": ("--base-state-inputs", "all"),  # every channel of the base law's state
         "privileged_critic": ("--privileged-inputs", "mean_wind", "turbulence", "true_error", "true_vel_error"),
         "memory4": ("--memory-frames", "4"),
-        "combined": ("--base-state-inputs", "force", "thrust", "ff", "--privileged-inputs", "mean_wind", "turbulence",
+        "combined": ("--base-state-inputs", "all", "--privileged-inputs", "mean_wind", "turbulence",
                      "true_error", "true_vel_error", "--memory-frames", "4"),
         "ema_tau_3": ("--ema-tau-s", "3"),  # the paper's wind filter instead of the validated one
         # its checkpoint records no validated tau, so it trains behind the paper's 3 s as well:
