@@ -48,6 +48,9 @@ def _levers(regime: str) -> dict[str, tuple[str, ...]]:
         # its checkpoint records no validated tau, so it trains behind the paper's 3 s as well:
         # against ema_tau_3 it is the estimator alone that differs
         "trailing_estimator": ("--estimator", TRAILING_ESTIMATOR[regime]),
+        # the critic's targets on a steadier scale: rewards divided by the running std of the return
+        "return_scaling": ("--reward-scaling", "return_std"),
+        "longer_rollouts": ("--steps-per-env", "512"),  # twice the decisions per row and batch
     }
 
 
