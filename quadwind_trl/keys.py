@@ -31,6 +31,9 @@ BASE_STATE_KEY = "base"
 #: the privileged inputs of an asymmetric critic (simulator truth, training only), written by
 #: ``transforms.PrivilegedObservation``
 PRIVILEGED_KEY = "privileged"
+#: a recurrent policy's hidden state ([1, H] per row), carried by the env between decisions
+#: (``RLEnvSpec.recurrent_hidden``) and reset with the episode (``is_init``)
+RECURRENT_KEY = "recurrent_state"
 #: bool [1]: the runtime monitor held the residual at zero over the last control step (an env
 #: observation entry only while ``ResidualConfig.monitor`` is on)
 MONITOR_KEY = "monitor_active"

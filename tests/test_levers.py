@@ -22,9 +22,13 @@ from quadwind_trl.rl.cli import build_parser, run, with_base_controller
 from quadwind_trl.rl.config import PPOConfig
 from quadwind_trl.rl.envs import RLEnvSpec, make_env, policy_env_settings, vecnorm
 from quadwind_trl.rl.paired import validation_scenarios
-from quadwind_trl.rl.policy import build_actor_critic, load_policy, network_dims, spec_to_dict
+from quadwind_trl.rl.envs import EnvFactory
+from quadwind_trl.rl.policy import build_actor_critic, check_recurrent, load_policy, network_dims, spec_to_dict
 from quadwind_trl.rl.trainer import PPOTrainer, ResumeMismatch, check_same_env
 from quadwind_trl.transforms import ObservationStack, PolicyObservation, PrivilegedObservation
+from torchrl.collectors import Collector
+from torchrl.envs.utils import ExplorationType
+from torchrl.modules import GRUModule, set_recurrent_mode
 from quadwind_trl.transforms.observation import base_state_channels, to_heading_frame
 
 from test_ppo import hover_spec
@@ -123,7 +127,7 @@ def test_the_levers_off_leave_the_stack_and_the_networks_as_before(bundle):
     plain = make_env("horizontal", bundle, 1, config=short_config(), compile_step=False)
     assert not any(isinstance(t, (ObservationStack, PrivilegedObservation)) for t in plain.transform)
     assert plain.observation_spec["observation"].shape[-1] == OBSERVATION_DIM
-    assert network_dims(RLEnvSpec()) == {"obs_dim": OBSERVATION_DIM, "privileged_dim": 0}
+    assert network_dims(RLEnvSpec()) == {"obs_dim": OBSERVATION_DIM, "privileged_dim": 0, "recurrent_hidden": 0}
     actor, value = build_actor_critic(PPOConfig(hidden=(8, 8)))
     assert value.in_keys == ["observation"] and list(value.state_dict()) == ["module.0.weight", "module.0.bias",
                                                                               "module.2.weight", "module.2.bias",
@@ -249,12 +253,47 @@ def test_the_stack_resets_masked_rows_of_a_batch_of_any_shape_with_no_host_sync(
             torch.cuda.set_sync_debug_mode("default")
 
 
+def test_a_recurrent_actor_carries_its_hidden_state_restarts_it_with_each_episode_and_replays_it_as_sequences():
+    spec = replace(hover_spec(duration_s=1.0), recurrent_hidden=16, num_envs=4)
+    env = EnvFactory(spec)(desync_steps=5)  # short first episodes: resets inside the batch
+    torch.manual_seed(0)
+    actor, _ = build_actor_critic(PPOConfig(hidden=(32, 32)), recurrent_hidden=16)
+    collector = Collector(env, actor, frames_per_batch=4 * 40, total_frames=-1, exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False)
+    data = next(iter(collector))
+    collector.shutdown()
+    init = data["is_init"].squeeze(-1)
+    assert init[:, 0].all() and init[:, 1:].any()  # episodes restarted within the rows
+    assert data["recurrent_state"][init].eq(0).all()  # every episode starts from a zero hidden state
+    carried = ~init[:, 1:]
+    assert torch.equal(data["recurrent_state"][:, 1:][carried], data["next", "recurrent_state"][:, :-1][carried])
+    assert data["recurrent_state"][:, 1:][carried].ne(0).any()
+    # the update's sequences ([rows, T] in recurrent mode) give the log-probs the collection drew with
+    with set_recurrent_mode(True):
+        log_prob = actor.get_dist(data.select("observation", "recurrent_state", "is_init").clone()).log_prob(data["action"])
+    torch.testing.assert_close(log_prob, data["action_log_prob"], atol=1e-4, rtol=1e-4)
+
+
+def test_a_recurrent_actor_refuses_the_ppo_settings_it_cannot_train_with():
+    spec = replace(hover_spec(), recurrent_hidden=8)
+    check_recurrent(PPOConfig(), spec)  # 512 = 2 whole rows of 256 steps
+    with pytest.raises(ValueError, match=r"RLEnvSpec\.recurrent_hidden=8: PPOConfig\.minibatch=512 must be a multiple "
+                                         r"of steps_per_env=384"):
+        check_recurrent(PPOConfig(steps_per_env=384, num_envs=64), spec)
+    with pytest.raises(ValueError, match=r"PPOConfig\.collect_workers=2, collector='local'; allowed with a recurrent "
+                                         r"actor: collect_workers=1"):
+        check_recurrent(PPOConfig(collect_workers=2), spec)
+    with pytest.raises(ValueError, match=r"RLEnvSpec\.recurrent_hidden=-1; allowed: a whole number >= 0"):
+        replace(spec, recurrent_hidden=-1)
+    check_recurrent(PPOConfig(collect_workers=2), hover_spec())  # no recurrent actor: nothing to refuse
+
+
 # --- trained, saved, loaded and flown -------------------------------------------------------------
 
 def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_flies_without_privileged(tmp_path):
     config, base_wind = with_base_controller("horizontal", hover_spec().env_config, "dob")
     spec = replace(hover_spec(duration_s=1.0), config=config, base_wind_input=base_wind, base_state_inputs=("force", "ff"),
-                   privileged_inputs=("mean_wind", "turbulence", "true_error"), memory_frames=3)
+                   privileged_inputs=("mean_wind", "turbulence", "true_error"), memory_frames=3, recurrent_hidden=16)
     cfg = PPOConfig(total_frames=2 * 4 * 16, num_envs=4, steps_per_env=16, epochs=1, minibatch=32, hidden=(32, 32),
                     eval_every_frames=0, checkpoint_every_frames=1)
     out = tmp_path / "run"
@@ -264,16 +303,18 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
     manifest = json.loads((out / "policy.json").read_text())
     assert manifest["env_spec"]["base_state_inputs"] == list(spec.base_state_inputs)
     assert manifest["env_spec"]["privileged_inputs"] == list(spec.privileged_inputs)
-    assert manifest["env_spec"]["memory_frames"] == 3
+    assert manifest["env_spec"]["memory_frames"] == 3 and manifest["env_spec"]["recurrent_hidden"] == 16
     assert manifest["observation_channels"] == list(OBSERVATION_CHANNELS + spec.base_state_inputs)
     latest = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)
     assert "privileged_vecnorm" in latest  # a resume needs the critic's normalisation ...
     saved = torch.load(out / "policy.pt", weights_only=True)
     assert "privileged_vecnorm" not in saved  # ... a policy never
     assert saved["value"]["module.mlp.0.weight"].shape[-1] == 3 * (OBSERVATION_DIM + 6) + 9  # the critic read it
-    # the loaded actor is the saved one, on (23 + 6) x 3 inputs
+    # the loaded actor is the saved one: a GRU of 16 units on (23 + 6) x 3 inputs
     actor, payload = load_policy(out / "policy.pt")
-    assert actor.module[0].module[0][0].in_features == 3 * (OBSERVATION_DIM + 6)
+    gru = next(m for m in actor.modules() if isinstance(m, GRUModule))
+    assert (gru.gru.input_size, gru.gru.hidden_size) == (3 * (OBSERVATION_DIM + 6), 16)
+    assert actor.state_dict().keys() == saved["policy"].keys()
     assert all(torch.equal(actor.state_dict()[k], v) for k, v in saved["policy"].items())
     # the evaluation path: the env of the policy's flight settings has no privileged entry, and flies
     settings = policy_env_settings(payload["env_spec"], None)
@@ -289,6 +330,8 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
         check_same_env(payload["env_spec"], replace(spec, privileged_inputs=()), None)
     with pytest.raises(ResumeMismatch, match=r"RLEnvSpec\.memory_frames=1 but the checkpoint's run used 3"):
         check_same_env(payload["env_spec"], replace(spec, memory_frames=1), None)
+    with pytest.raises(ResumeMismatch, match=r"RLEnvSpec\.recurrent_hidden=0 but the checkpoint's run used 16"):
+        check_same_env(payload["env_spec"], replace(spec, recurrent_hidden=0), None)
     check_same_env(spec_to_dict(spec), spec, None)
     assert math.isfinite(manifest["wall_time_s"])
 

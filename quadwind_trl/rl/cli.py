@@ -24,6 +24,7 @@ from .collection import check_device, check_ray
 from .config import COLLECTORS, LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from .paired import validation_scenarios
+from .policy import check_recurrent
 from .trainer import PPOTrainer, ResumeMismatch
 
 # frames between evaluations on the validation sweep, whose best one is kept: every 16 (horizontal)
@@ -109,6 +110,10 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--memory-frames", type=int, default=1, metavar="K",
                    help="the policy reads its last K observations (decisions) side by side, in training and whenever "
                         "it flies; K >= 1 (default 1: memoryless, the paper's)")
+    p.add_argument("--recurrent-hidden", type=int, default=0, metavar="H",
+                   help="a recurrent actor: a GRU of H units over the observations before its MLP, its hidden state "
+                        "carried between decisions and restarted with each episode; needs the minibatch (512) a multiple of "
+                        "--steps-per-env and local collection in this process (default 0: none)")
     p.add_argument("--eval-every", type=int, default=None,
                    help=f"frames between evaluations against PD, 0: only at the end (default {DEFAULT_EVAL_EVERY[regime]:,})")
     p.add_argument("--eval-episodes", type=int, default=None,
@@ -191,7 +196,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
                          config=config, base_wind_input=base_wind, compile_step=not args.eager,
                          zero_inputs=input_channels(args.zero_inputs), base_state_inputs=tuple(args.base_state_inputs),
-                         privileged_inputs=tuple(args.privileged_inputs), memory_frames=args.memory_frames)
+                         privileged_inputs=tuple(args.privileged_inputs), memory_frames=args.memory_frames,
+                         recurrent_hidden=args.recurrent_hidden)
     except ValueError as err:  # a bad setting (e.g. --zero-inputs tilt): the message names the allowed values
         raise SystemExit(f"error: {err}") from None
     quick_cfg = None
@@ -203,6 +209,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     try:
         cfg = recipe_ppo_config(regime, args, quick_cfg)
         check_device(cfg, spec.device)
+        check_recurrent(cfg, spec)
     except ValueError as err:  # e.g. --collect-workers 3 with 64 envs: the message names the field and the rule
         raise SystemExit(f"error: {err}") from None
     try:  # a missing Ray, or an --address where no head node answers, before anything is built
@@ -229,7 +236,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s; "
           f"wind input: {spec.wind_input}; inputs zeroed: {', '.join(spec.zero_inputs) or 'none'}; base state read: "
           f"{', '.join(spec.base_state_inputs) or 'none'}; critic's privileged inputs: "
-          f"{', '.join(spec.privileged_inputs) or 'none'}; memory: {spec.memory_frames} frame(s)", flush=True)
+          f"{', '.join(spec.privileged_inputs) or 'none'}; memory: {spec.memory_frames} frame(s)"
+          f"{f', recurrent actor of {spec.recurrent_hidden} units' if spec.recurrent_hidden else ''}", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)
     scenarios = validation_scenarios(regime, episodes) if episodes != 0 else None

@@ -17,6 +17,7 @@ Stack (``env.transform[i]``)::
     5 ZeroInputs          (wind_input="zero" or zero_inputs only) those channels = 0: the wind's
                           (wind_fwd, wind_left) for "zero", and the zero_inputs channels
     . ObservationStack    (memory_frames > 1 only) observation [K (23 + B)]: the last K, newest last
+    . InitTracker, TensorDictPrimer   (recurrent_hidden > 0 only) is_init, recurrent_state [1, H]
     . RunningObsNorm, ClipTransform   (privileged_inputs only) the same for privileged
     . RewardSum, StepCounter   episode_reward, step_count for logging
 
@@ -50,7 +51,8 @@ from functools import partial
 from typing import Literal, Mapping, TypeVar
 
 import torch
-from torchrl.envs import (ClipTransform, Compose, ParallelEnv, RemoveEmptySpecs, RewardSum, SelectTransform, StepCounter, Transform, TransformedEnv,
+from torchrl.data import Unbounded
+from torchrl.envs import (ClipTransform, Compose, InitTracker, ParallelEnv, TensorDictPrimer, RemoveEmptySpecs, RewardSum, SelectTransform, StepCounter, Transform, TransformedEnv,
                           VecNormV2)
 
 from ..config import EnvConfig
@@ -62,7 +64,7 @@ from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
 from ..keys import (BASE_STATE_GROUPS, OBSERVATION_CHANNELS, OBSERVATION_KEY, PRIVILEGED_CHANNELS, PRIVILEGED_GROUPS,
-                    PRIVILEGED_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS, named_channels)
+                    PRIVILEGED_KEY, RECURRENT_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS, named_channels)
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
 from ..transforms import (BaseWindInput, EpisodeControl, ObservationStack, PolicyObservation, PrivilegedObservation,
                           RunningObsNorm, WindEstimate, ZeroInputs)
@@ -133,6 +135,9 @@ class RLEnvSpec:
     privileged_inputs: tuple[str, ...] = ()
     # the policy reads its last memory_frames observations (env steps) side by side; 1: memoryless
     memory_frames: int = 1
+    # a recurrent actor's hidden size (a GRU over the observations; 0: none): the env then carries
+    # its hidden state between decisions and marks episode starts (is_init), where it restarts at 0
+    recurrent_hidden: int = 0
 
     def __post_init__(self):
         check_regime(self.regime)
@@ -177,6 +182,9 @@ class RLEnvSpec:
         frames = self.memory_frames
         if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
             raise ValueError(f"RLEnvSpec.memory_frames={frames!r}; allowed: a whole number >= 1 (1: memoryless)")
+        hidden = self.recurrent_hidden
+        if not isinstance(hidden, int) or isinstance(hidden, bool) or hidden < 0:
+            raise ValueError(f"RLEnvSpec.recurrent_hidden={hidden!r}; allowed: a whole number >= 0 (0: no recurrent actor)")
 
     @property
     def observation_channels(self) -> tuple[str, ...]:
@@ -241,6 +249,9 @@ def _batch_transforms(spec: RLEnvSpec) -> list[Transform]:
         transforms.append(ZeroInputs(spec.zeroed_channels))
     if spec.memory_frames > 1:  # the stack holds the policy's inputs as it reads them: normalised, clipped, zeroed
         transforms.append(ObservationStack(spec.memory_frames))
+    if spec.recurrent_hidden:  # episode starts, and the hidden state the actor carries (0 at a reset)
+        transforms += [InitTracker(), TensorDictPrimer({RECURRENT_KEY: Unbounded(shape=(1, spec.recurrent_hidden))},
+                                                       expand_specs=True)]
     if spec.privileged_inputs:  # the critic's own normalisation (saved in training checkpoints, never in a policy)
         transforms.append(RunningObsNorm(in_keys=[PRIVILEGED_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True))
         if spec.obs_clip is not None:
@@ -397,6 +408,7 @@ def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> d
         "base_wind_input": env_spec.get("base_wind_input", "estimate"),
         "base_state_inputs": tuple(env_spec.get("base_state_inputs", ())),
         "memory_frames": int(env_spec.get("memory_frames", 1)),
+        "recurrent_hidden": int(env_spec.get("recurrent_hidden", 0)),
     }
 
 

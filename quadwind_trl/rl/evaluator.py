@@ -83,7 +83,7 @@ def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed:
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
         env = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
-        actor = build_actor_critic(cfg, network_dims(factory.spec)["obs_dim"])[0].to(factory.spec.device)
+        actor = build_actor_critic(cfg, **network_dims(factory.spec))[0].to(factory.spec.device)
         pd_eval = None
         while (job := jobs.get()) is not None:
             job = from_bytes(job)

@@ -16,19 +16,21 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import torch
-from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs.utils import ExplorationType
-from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import GRUModule, ProbabilisticActor, TanhNormal, ValueOperator
 
 from ..config import config_to_dict
-from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM, OBSERVATION_KEY, PRIVILEGED_KEY
+from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM, OBSERVATION_KEY, PRIVILEGED_KEY, RECURRENT_KEY
 from ..manifest import repo_relative
 from ..validation import load_checkpoint
 from .config import ACTIVATIONS, PPOConfig
 from .envs import RLEnvSpec
 
 CHECKPOINT_FORMAT = 1
+# what a recurrent actor's GRU hands its MLP
+MEMORY_KEY = "memory"
 
 
 def _mlp(sizes: Sequence[int], activation: type[nn.Module], out_gain: float) -> nn.Sequential:
@@ -62,23 +64,50 @@ def network_dims(env_spec: RLEnvSpec | Mapping) -> dict[str, int]:
     privileged channels; :func:`build_actor_critic` keywords."""
     get = (lambda name, default: getattr(env_spec, name)) if isinstance(env_spec, RLEnvSpec) else env_spec.get
     per_frame = OBSERVATION_DIM + len(get("base_state_inputs", ()))
-    return {"obs_dim": per_frame * int(get("memory_frames", 1)), "privileged_dim": len(get("privileged_inputs", ()))}
+    return {"obs_dim": per_frame * int(get("memory_frames", 1)), "privileged_dim": len(get("privileged_inputs", ())),
+            "recurrent_hidden": int(get("recurrent_hidden", 0))}
+
+
+def check_recurrent(cfg: PPOConfig, spec: RLEnvSpec) -> None:
+    """Refuse, naming the fields, the PPO settings a recurrent actor (``spec.recurrent_hidden``)
+    cannot train with: its update takes whole rows of a batch as sequences (a minibatch of
+    ``minibatch / steps_per_env`` rows, so the hidden state runs through each row's steps in order),
+    and its collection runs in this process (the hidden state through collection workers or Ray
+    actors is not verified)."""
+    if not spec.recurrent_hidden:
+        return
+    if cfg.minibatch % cfg.steps_per_env:
+        raise ValueError(f"RLEnvSpec.recurrent_hidden={spec.recurrent_hidden}: PPOConfig.minibatch={cfg.minibatch} must be "
+                         f"a multiple of steps_per_env={cfg.steps_per_env} (a recurrent minibatch is whole rows of the "
+                         "batch; --steps-per-env)")
+    if cfg.collect_workers != 1 or cfg.collector != "local":
+        raise ValueError(f"RLEnvSpec.recurrent_hidden={spec.recurrent_hidden}: PPOConfig.collect_workers="
+                         f"{cfg.collect_workers}, collector={cfg.collector!r}; allowed with a recurrent actor: "
+                         "collect_workers=1, collector='local' (the hidden state is carried in this process)")
 
 
 def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_dim: int = 4,
                        action_low: float = -1.0, action_high: float = 1.0, *,
-                       privileged_dim: int = 0) -> tuple[ProbabilisticActor, ValueOperator]:
+                       privileged_dim: int = 0, recurrent_hidden: int = 0) -> tuple[ProbabilisticActor, ValueOperator]:
     """TanhNormal actor (``observation`` -> ``action``, ``action_log_prob``) and value critic
     (``observation``, and with ``privileged_dim`` > 0 also ``privileged``: the asymmetric critic,
-    whose extra inputs the actor never reads)."""
+    whose extra inputs the actor never reads). With ``recurrent_hidden`` > 0 the actor reads its
+    observations through a GRU of that size (TorchRL's ``GRUModule``: hidden state
+    ``recurrent_state``, restarted at 0 where ``is_init``) before its MLP."""
     act = ACTIVATIONS[cfg.activation]
     sizes = (obs_dim, *cfg.hidden)
-    net = nn.Sequential(
-        _mlp((*sizes, action_dim), act, 0.01),
-        AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=math.log(cfg.init_scale)),
-    )
+    scale = AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=math.log(cfg.init_scale))
+    if recurrent_hidden:
+        memory = GRUModule(input_size=obs_dim, hidden_size=recurrent_hidden, in_keys=[OBSERVATION_KEY, RECURRENT_KEY, "is_init"],
+                           out_keys=[MEMORY_KEY, ("next", RECURRENT_KEY)])
+        head = TensorDictModule(nn.Sequential(_mlp((recurrent_hidden, *cfg.hidden, action_dim), act, 0.01), scale),
+                                in_keys=[MEMORY_KEY], out_keys=["loc", "scale"])
+        module = TensorDictSequential(memory, head)
+    else:  # the paper's actor, with the parameter names of every policy file before the recurrent one
+        module = TensorDictModule(nn.Sequential(_mlp((*sizes, action_dim), act, 0.01), scale), in_keys=[OBSERVATION_KEY],
+                                  out_keys=["loc", "scale"])
     actor = ProbabilisticActor(
-        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        module,
         in_keys=["loc", "scale"],
         distribution_class=TanhNormal,
         distribution_kwargs={"low": action_low, "high": action_high},
@@ -95,7 +124,8 @@ def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_di
 
 def action_scale(actor: ProbabilisticActor) -> float:
     """Mean standard deviation of the pre-tanh Normal (the state-independent exploration scale)."""
-    return float(actor.module[0].module[-1].state_independent_scale.detach().exp().mean())
+    scale = next(m for m in actor.modules() if isinstance(m, AddStateIndependentNormalScale))
+    return float(scale.state_independent_scale.detach().exp().mean())
 
 
 def spec_to_dict(spec: RLEnvSpec) -> dict:
@@ -140,6 +170,7 @@ def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dic
     cfg = payload["ppo_config"]
     cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
     # the actor reads no privileged input: the file's critic, if any, is not rebuilt here
-    actor, _ = build_actor_critic(cfg, network_dims(payload["env_spec"])["obs_dim"])
+    dims = network_dims(payload["env_spec"])
+    actor, _ = build_actor_critic(cfg, dims["obs_dim"], recurrent_hidden=dims["recurrent_hidden"])
     actor.load_state_dict(payload["policy"])
     return actor.to(device).eval(), payload

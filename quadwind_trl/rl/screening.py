@@ -42,6 +42,7 @@ def _levers(regime: str) -> dict[str, tuple[str, ...]]:
         "base_state": ("--base-state-inputs", "all"),  # every channel of the base law's state
         "privileged_critic": ("--privileged-inputs", "mean_wind", "turbulence", "true_error", "true_vel_error"),
         "memory4": ("--memory-frames", "4"),
+        "recurrent64": ("--recurrent-hidden", "64"),  # a GRU of 64 units before the actor's MLP
         "combined": ("--base-state-inputs", "all", "--privileged-inputs", "mean_wind", "turbulence",
                      "true_error", "true_vel_error", "--memory-frames", "4"),
         "ema_tau_3": ("--ema-tau-s", "3"),  # the paper's wind filter instead of the validated one

@@ -35,7 +35,7 @@ from .envs import (EnvFactory, RLEnvSpec, estimator_seconds, load_vecnorm_state,
                    vecnorm_state_dict)
 from .evaluator import BackgroundEvaluator, evaluate_against_pd, from_bytes, to_bytes
 from .paired import VALIDATION_TAIL_FRACTION
-from .policy import action_scale, build_actor_critic, network_dims, policy_payload, spec_to_dict
+from .policy import action_scale, build_actor_critic, check_recurrent, network_dims, policy_payload, spec_to_dict
 from .update import PPOUpdate
 
 
@@ -186,6 +186,7 @@ class PPOTrainer:
         stop_when: Callable[[list[dict]], bool] | None = None,
     ):
         self.cfg = cfg.validate()
+        check_recurrent(self.cfg, env_spec)
         if env_spec.num_envs != cfg.num_envs:
             env_spec = replace(env_spec, num_envs=cfg.num_envs)
         self.spec = env_spec
