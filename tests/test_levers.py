@@ -153,6 +153,19 @@ def test_an_old_policy_file_rebuilds_the_paper_actor_and_flies_as_before():
 
 # --- what each lever computes ---------------------------------------------------------------------
 
+def test_the_stack_with_every_lever_passes_torchrls_spec_check():
+    from torchrl.envs.utils import check_env_specs
+
+    config, base_wind = base_config("l1")
+    env = make_env("horizontal", None, 3, wind_input="truth", config=config, base_wind_input=base_wind,
+                   base_state_inputs=("all",), privileged_inputs=("mean_wind", "true_vel_error"), memory_frames=2,
+                   recurrent_hidden=8, compile_step=False)
+    check_env_specs(env)
+    spec = env.observation_spec
+    assert spec["observation"].shape[-1] == 2 * (OBSERVATION_DIM + len(base_state_channels(config)))
+    assert spec["privileged"].shape[-1] == 6 and spec["recurrent_state"].shape[-2:] == (1, 8)
+
+
 @pytest.mark.parametrize("base", ["dob", "pid", "l1"])
 def test_base_state_channels_are_the_base_laws_state_and_action_zero_is_still_the_base_law(bundle, base):
     channels = base_state_channels(base_config(base)[0])
