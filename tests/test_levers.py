@@ -403,3 +403,19 @@ def test_screen_levers_quick_writes_a_row_per_run_a_table_and_resumes_from_disk(
     other = screen("mem2=--memory-frames 3")
     assert other.returncode == 1 and "error: " in other.stderr and "give the setting another name" in other.stderr
     assert "training:" not in other.stdout
+
+
+def test_the_gym_classes_size_their_observation_space_to_the_levers():
+    import gymnasium as gym
+    import numpy as np
+
+    import quadwind_trl.gym as qgym
+
+    from test_gym import _short
+
+    envs = gym.make_vec(qgym.ENV_IDS["horizontal"], num_envs=2, memory_frames=3, **_short("horizontal"))
+    assert envs.single_observation_space.shape == (3 * OBSERVATION_DIM,)
+    obs, _ = envs.reset(seed=0)
+    assert obs.shape == (2, 3 * OBSERVATION_DIM) and envs.observation_space.contains(obs)
+    obs, *_ = envs.step(np.zeros((2, 4), np.float32))
+    assert obs.shape == (2, 3 * OBSERVATION_DIM)
