@@ -338,6 +338,13 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
     assert not any(isinstance(t, PrivilegedObservation) for t in env.transform)
     result = fly(env, sc, policy=actor)
     assert torch.isfinite(result.rmse).all() and torch.isfinite(result.rmse_xy).all()
+    # and the ablation's flights of it (the residual and its base alone), as every later evaluation flies it
+    from quadwind_trl.evaluation.ablation import fly_controllers
+
+    flown = fly_controllers("horizontal", sc, out / "policy.pt", untrained_estimator("horizontal"), ("pd", "aware"),
+                            log_keys=("step",))
+    assert torch.equal(flown["aware"].rmse_xy, result.rmse_xy)  # the same flight
+    assert not torch.equal(flown["aware"].rmse_xy, flown["pd"].rmse_xy)
     # a resume must give the critic the same inputs
     with pytest.raises(ResumeMismatch, match=r"RLEnvSpec\.privileged_inputs=\(\) but the checkpoint's run used"):
         check_same_env(payload["env_spec"], replace(spec, privileged_inputs=()), None)
