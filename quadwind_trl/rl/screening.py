@@ -165,6 +165,7 @@ class ScreenRow:
     policy: str
     git_commit: str | None
     extra_flags: list[str] = field(default_factory=list)
+    val_episodes: int | None = None  # the validation episodes scored (None: the whole sweep)
     recipe_args: list[str] = field(default_factory=list)
 
 
@@ -174,15 +175,17 @@ class ScreenMismatch(ValueError):
 
 def _finished(path: Path, flags: Sequence[str], plan: ScreenPlan) -> ScreenRow | None:
     """The row on disk for this run, if one was written for the same run (flags, frames, regime,
-    base, flags given to every run); a :class:`ScreenMismatch` if it was written for another."""
+    base, flags given to every run, validation episodes); a :class:`ScreenMismatch` if it was
+    written for another."""
     if not path.exists():
         return None
     row = ScreenRow(**json.loads(path.read_text()))
-    saved = (row.regime, row.base, list(row.flags), list(row.extra_flags), row.frames)
-    asked = (plan.regime, plan.base, list(flags), list(plan.extra_flags), plan.frames)
+    saved = (row.regime, row.base, list(row.flags), list(row.extra_flags), row.frames, row.val_episodes)
+    asked = (plan.regime, plan.base, list(flags), list(plan.extra_flags), plan.frames, plan.val_episodes)
     if saved != asked:
-        raise ScreenMismatch(f"{path} holds a run of (regime, base, flags, flags of every run, frames) = {saved}; this "
-                             f"screen asks {asked} under that name: give the setting another name, or another --out")
+        raise ScreenMismatch(f"{path} holds a run of (regime, base, flags, flags of every run, frames, validation "
+                             f"episodes) = {saved}; this screen asks {asked} under that name: give the setting another "
+                             "name, or another --out")
     return row
 
 
@@ -211,7 +214,8 @@ def screen(plan: ScreenPlan, log=print) -> list[ScreenRow]:
             row = ScreenRow(lever=name, flags=list(flags), seed=seed, regime=plan.regime, base=plan.base,
                             frames=manifest["frames"], validation=validation, train_wall_s=manifest["wall_time_s"],
                             wall_s=round(manifest["wall_time_s"] + validation["eval_s"], 1), policy=repo_relative(policy),
-                            git_commit=git_commit(), extra_flags=list(plan.extra_flags), recipe_args=argv)
+                            git_commit=git_commit(), extra_flags=list(plan.extra_flags), val_episodes=plan.val_episodes,
+                            recipe_args=argv)
             write_json(path, asdict(row))
             log(f"[{name} seed {seed}] validation xy {validation['xy']['gain_pct']:+.1f} % "
                 f"[{validation['xy']['ci_low_pct']:+.1f}, {validation['xy']['ci_high_pct']:+.1f}], z "
