@@ -29,7 +29,7 @@ from gymnasium.vector import AutoresetMode
 from tensordict import TensorDictBase
 
 from .estimator import load_estimator
-from .keys import OBSERVATION_DIM, OBSERVATION_KEY
+from .keys import OBSERVATION_KEY
 from .manifest import CHECKPOINT_DIR
 from .rl.envs import Regime, WindInput, check_regime, make_env, policy_env_settings
 from .validation import check_action, load_checkpoint
@@ -60,6 +60,8 @@ class _BatchedStack:
         self.env = make_env(regime, bundle, num_envs, wind_input=wind_input, seed=seed, obs_clip=obs_clip,
                             **(shipped | env_kwargs))
         self.num_envs = num_envs
+        # the paper's 23 inputs, or more with env_kwargs such as memory_frames or base_state_inputs
+        self.obs_dim = self.env.observation_spec[OBSERVATION_KEY].shape[-1]
         self.td: TensorDictBase | None = None
 
     def reset(self, seed: int | None, scenario: TensorDictBase | None) -> np.ndarray:
@@ -83,8 +85,8 @@ class _BatchedStack:
         return td.get(OBSERVATION_KEY).numpy().astype(np.float32, copy=True)
 
 
-def _spaces(obs_clip: float, num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
-    shape = (OBSERVATION_DIM,) if num_envs is None else (num_envs, OBSERVATION_DIM)
+def _spaces(obs_clip: float, obs_dim: int, num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
+    shape = (obs_dim,) if num_envs is None else (num_envs, obs_dim)
     ashape = (ACTION_DIM,) if num_envs is None else (num_envs, ACTION_DIM)
     return (spaces.Box(-obs_clip, obs_clip, shape, np.float32), spaces.Box(-1.0, 1.0, ashape, np.float32))
 
@@ -99,8 +101,9 @@ class QuadWindVectorEnv(gymnasium.vector.VectorEnv):
                  seed: int = 0, **env_kwargs):
         self.stack = _BatchedStack(regime, num_envs, wind_input, estimator, vecnorm_state, obs_clip, seed, env_kwargs)
         self.num_envs = num_envs
-        self.single_observation_space, self.single_action_space = _spaces(obs_clip)
-        self.observation_space, self.action_space = _spaces(obs_clip, num_envs)
+        obs_dim = self.stack.obs_dim
+        self.single_observation_space, self.single_action_space = _spaces(obs_clip, obs_dim)
+        self.observation_space, self.action_space = _spaces(obs_clip, obs_dim, num_envs)
         self.regime = regime
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -130,7 +133,7 @@ class QuadWindEnv(gymnasium.Env):
     def __init__(self, regime: Regime = "horizontal", *, wind_input: WindInput = "estimate", estimator: str | None = None,
                  vecnorm_state: dict | None = None, obs_clip: float = 10.0, seed: int = 0, **env_kwargs):
         self.stack = _BatchedStack(regime, 1, wind_input, estimator, vecnorm_state, obs_clip, seed, env_kwargs)
-        self.observation_space, self.action_space = _spaces(obs_clip)
+        self.observation_space, self.action_space = _spaces(obs_clip, self.stack.obs_dim)
         self.regime = regime
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):

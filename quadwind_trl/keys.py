@@ -25,6 +25,15 @@ MEAN_WIND_KEY = ("truth", "mean_wind")
 #: (north, east) wind estimate, m/s, that a wind feed-forward base controller flies on: an input
 #: of the env's step (its ``state_spec``), written by ``transforms.BaseWindInput``
 BASE_WIND_KEY = "base_wind_ne"
+#: the base controller's state, a sub-tensordict of the env's observation (only for a base law with
+#: state: ``envs.controller.CascadeController.init_state`` names its entries)
+BASE_STATE_KEY = "base"
+#: the privileged inputs of an asymmetric critic (simulator truth, training only), written by
+#: ``transforms.PrivilegedObservation``
+PRIVILEGED_KEY = "privileged"
+#: a recurrent policy's hidden state ([1, H] per row), carried by the env between decisions
+#: (``RLEnvSpec.recurrent_hidden``) and reset with the episode (``is_init``)
+RECURRENT_KEY = "recurrent_state"
 #: bool [1]: the runtime monitor held the residual at zero over the last control step (an env
 #: observation entry only while ``ResidualConfig.monitor`` is on)
 MONITOR_KEY = "monitor_active"
@@ -78,6 +87,56 @@ INPUT_GROUPS: dict[str, tuple[str, ...]] = {
 }
 #: the channels ``zero_inputs`` may name: every one but the wind's
 ZEROABLE_CHANNELS: tuple[str, ...] = tuple(c for c in OBSERVATION_CHANNELS if c not in WIND_CHANNELS)
+
+
+def _heading_vector(prefix: str) -> tuple[str, str, str]:
+    return f"{prefix}_fwd", f"{prefix}_left", f"{prefix}_U"
+
+
+#: the base controller's state a policy may read beside the observation (``RLEnvSpec.base_state_inputs``,
+#: ``--base-state-inputs``), by group; appended after :data:`OBSERVATION_CHANNELS` in this order.
+#: Horizontal parts in the heading frame, as the observation's. What each is, and which base law
+#: has it: ``transforms.observation.BASE_STATE_SOURCES``
+BASE_STATE_GROUPS: dict[str, tuple[str, ...]] = {
+    "force": _heading_vector("base_force"),  # the observer's (or L1's) external force estimate, N
+    "thrust": ("base_thrust_over_weight",),  # the thrust the observer models the rotors giving / (m g)
+    "integral": _heading_vector("base_int"),  # the integral of the position error, m s
+    "vel_err": _heading_vector("base_vel_err"),  # L1's predicted minus measured velocity, m/s
+    "ff": _heading_vector("base_ff"),  # the acceleration the base's additions put into its outer loop, m/s^2
+}
+BASE_STATE_CHANNELS: tuple[str, ...] = tuple(c for group in BASE_STATE_GROUPS.values() for c in group)
+#: simulator truth an asymmetric critic may read at training time (``RLEnvSpec.privileged_inputs``,
+#: ``--privileged-inputs``), never the actor, by group; horizontal parts in the heading frame
+PRIVILEGED_GROUPS: dict[str, tuple[str, ...]] = {
+    "mean_wind": _heading_vector("mean_wind"),  # the true turbulence-free mean wind at the vehicle, m/s
+    "turbulence": _heading_vector("turb"),  # the true air velocity minus that mean: the turbulence, m/s
+    "true_error": _heading_vector("true_err"),  # true position minus the reference, m
+    "true_vel_error": _heading_vector("true_vel_err"),  # true velocity minus the reference, m/s
+}
+PRIVILEGED_CHANNELS: tuple[str, ...] = tuple(c for group in PRIVILEGED_GROUPS.values() for c in group)
+
+
+def named_channels(names: Sequence[str], groups: dict[str, tuple[str, ...]], field: str,
+                   allowed: Sequence[str] | None = None) -> tuple[str, ...]:
+    """The channels of ``names`` (group names of ``groups`` or channel names), each once, in the
+    groups' order; a ``ValueError`` naming ``field``, the unknown names and the allowed ones
+    unless every channel is in ``allowed`` (default: all the groups' channels)."""
+    catalogue = tuple(c for group in groups.values() for c in group)
+    allowed = catalogue if allowed is None else tuple(allowed)
+    if isinstance(names, str) or not all(isinstance(n, str) for n in names):
+        raise ValueError(f"{field}={names!r}; allowed: a sequence of names of the groups {sorted(groups)} or the "
+                         f"channels {allowed}")
+    usable = sorted(g for g, cs in groups.items() if all(c in allowed for c in cs))
+    unknown = [n for n in names if n not in groups and n not in catalogue]
+    if unknown:
+        raise ValueError(f"{field}={tuple(names)!r}: unknown {unknown}; allowed: the groups {usable} or the "
+                         f"channels {allowed}")
+    missing = [n for n in names if any(c not in allowed for c in groups.get(n, (n,)))]
+    if missing:
+        raise ValueError(f"{field}={tuple(names)!r}: {missing} not available here; allowed: the groups {usable} or "
+                         f"the channels {allowed}")
+    chosen = {c for n in names for c in groups.get(n, (n,))}
+    return tuple(c for c in catalogue if c in chosen)
 
 
 def input_channels(names: Sequence[str]) -> tuple[str, ...]:

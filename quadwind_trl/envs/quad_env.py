@@ -12,7 +12,7 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
-from ..keys import BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY
+from ..keys import BASE_STATE_KEY, BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY
 from ..validation import check_action
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
@@ -126,6 +126,9 @@ class QuadWindEnv(EnvBase):
     * ``tilt_cmd`` [1] (rad), ``tilt_saturated`` [1]: the PD's commanded tilt and its limit flag;
     * ``monitor_active`` [1] (only with ``ResidualConfig.monitor`` on): the runtime monitor held
       the residual at zero over the last control step (:mod:`quadwind_trl.envs.monitor`);
+    * ``base`` (only for a base law with state: integral action or a force estimate): the law's
+      state after the step, one entry per :meth:`~quadwind_trl.envs.controller.BaseController.init_state`
+      entry (``integral`` [3] m s, ``force_hat`` [3] N, ``thrust_hat`` [1] N, ``vel_hat`` [3] m/s; world ENU);
     * ``step`` [1]: the control-step index (int64; the 10 Hz log ticks where it is a multiple of 10);
     * ``truth``: simulator truth for labels and diagnostics (``pos``, ``vel``, ``quat``, ``omega``,
       ``wind`` the total air velocity, ``mean_wind`` the turbulence-free mean).
@@ -212,6 +215,9 @@ class QuadWindEnv(EnvBase):
         spec["step"] = _vec(n, 1, dev, torch.int64)
         if self.config.residual.monitor is not None:
             spec[MONITOR_KEY] = Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)
+        base = self.sim.controller.init_state(1, dev)
+        if base is not None:  # the base law's state (a policy may read it: transforms.PolicyObservation)
+            spec[BASE_STATE_KEY] = Composite({k: _vec(n, v.shape[-1], dev) for k, v in base.items()}, shape=(n,), device=dev)
         self.observation_spec = spec
         self.action_spec = Bounded(low=-1.0, high=1.0, shape=(n, 4), device=dev)
         if self.sim.controller.needs_wind:
@@ -296,6 +302,8 @@ class QuadWindEnv(EnvBase):
             node[name] = entry(s, *source)
         if self.config.residual.monitor is not None:
             entries[MONITOR_KEY] = entry(s, "control", "monitor_left") > 0
+        if BASE_STATE_KEY in s.keys():
+            entries[BASE_STATE_KEY] = dict(entry(s, BASE_STATE_KEY).items())
         entries.update(extra)
         # without the constructor's per-entry checks (they cost more than the step's arithmetic at
         # small batches): every entry is the simulator's, of batch [N] on this env's device

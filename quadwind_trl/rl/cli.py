@@ -16,7 +16,7 @@ import torch
 
 from ..config import SENSING, EnvConfig, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
-from ..keys import INPUT_GROUPS, input_channels
+from ..keys import BASE_STATE_GROUPS, INPUT_GROUPS, PRIVILEGED_GROUPS, input_channels
 from ..quick import PPO_QUICK
 from ..ray_cluster import RayUnavailable
 from ..regimes import CLASSICAL_CONTROLLERS, PAPER_REWARD_W_Z, REWARD_W_Z, classical_controller, regime_config
@@ -24,6 +24,7 @@ from .collection import check_device, check_ray
 from .config import COLLECTORS, LR_SCHEDULES, REWARD_SCALINGS, PPOConfig, vertical_curriculum
 from .envs import DEFAULT_RANGES, RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from .paired import validation_scenarios
+from .policy import check_recurrent
 from .trainer import PPOTrainer, ResumeMismatch
 
 # frames between evaluations on the validation sweep, whose best one is kept: every 16 (horizontal)
@@ -97,6 +98,22 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--zero-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
                    help=f"policy inputs forced to 0 in training and whenever the policy flies: groups ({groups}) or "
                         "channel names (keys.OBSERVATION_CHANNELS, the wind's excepted: --wind-input zero); default: none")
+    base_groups = "; ".join(f"{name}: {' '.join(channels)}" for name, channels in BASE_STATE_GROUPS.items())
+    p.add_argument("--base-state-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
+                   help=f"the base controller's state the policy reads beside its 23 inputs, in training and whenever it "
+                        f"flies: groups ({base_groups}) or channel names, those the --base-controller has (dob, l1: force "
+                        "thrust ff; l1 also vel_err; pid: integral ff), or all: every one it has; default: none")
+    priv_groups = "; ".join(f"{name}: {' '.join(channels)}" for name, channels in PRIVILEGED_GROUPS.items())
+    p.add_argument("--privileged-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
+                   help=f"simulator truth the critic alone reads, at training time only (an asymmetric actor-critic; the "
+                        f"policy flies without it): groups ({priv_groups}) or channel names; default: none")
+    p.add_argument("--memory-frames", type=int, default=1, metavar="K",
+                   help="the policy reads its last K observations (decisions) side by side, in training and whenever "
+                        "it flies; K >= 1 (default 1: memoryless, the paper's)")
+    p.add_argument("--recurrent-hidden", type=int, default=0, metavar="H",
+                   help="a recurrent actor: a GRU of H units over the observations before its MLP, its hidden state "
+                        "carried between decisions and restarted with each episode; needs the minibatch (512) a multiple of "
+                        "--steps-per-env and local collection in this process (default 0: none)")
     p.add_argument("--eval-every", type=int, default=None,
                    help=f"frames between evaluations against PD, 0: only at the end (default {DEFAULT_EVAL_EVERY[regime]:,})")
     p.add_argument("--eval-episodes", type=int, default=None,
@@ -178,7 +195,9 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
                          config=config, base_wind_input=base_wind, compile_step=not args.eager,
-                         zero_inputs=input_channels(args.zero_inputs))
+                         zero_inputs=input_channels(args.zero_inputs), base_state_inputs=tuple(args.base_state_inputs),
+                         privileged_inputs=tuple(args.privileged_inputs), memory_frames=args.memory_frames,
+                         recurrent_hidden=args.recurrent_hidden)
     except ValueError as err:  # a bad setting (e.g. --zero-inputs tilt): the message names the allowed values
         raise SystemExit(f"error: {err}") from None
     quick_cfg = None
@@ -190,6 +209,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     try:
         cfg = recipe_ppo_config(regime, args, quick_cfg)
         check_device(cfg, spec.device)
+        check_recurrent(cfg, spec)
     except ValueError as err:  # e.g. --collect-workers 3 with 64 envs: the message names the field and the rule
         raise SystemExit(f"error: {err}") from None
     try:  # a missing Ray, or an --address where no head node answers, before anything is built
@@ -214,7 +234,10 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     except ValueError as err:  # e.g. --estimate-every-s 0.25: the message names the allowed values
         raise SystemExit(f"error: {err}") from None
     print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s; "
-          f"wind input: {spec.wind_input}; inputs zeroed: {', '.join(spec.zero_inputs) or 'none'}", flush=True)
+          f"wind input: {spec.wind_input}; inputs zeroed: {', '.join(spec.zero_inputs) or 'none'}; base state read: "
+          f"{', '.join(spec.base_state_inputs) or 'none'}; critic's privileged inputs: "
+          f"{', '.join(spec.privileged_inputs) or 'none'}; memory: {spec.memory_frames} frame(s)"
+          f"{f', recurrent actor of {spec.recurrent_hidden} units' if spec.recurrent_hidden else ''}", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)
     scenarios = validation_scenarios(regime, episodes) if episodes != 0 else None

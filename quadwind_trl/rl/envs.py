@@ -10,11 +10,15 @@ Stack (``env.transform[i]``)::
     1 WindEstimate        wind_hat: estimate (frozen net + EMA) | truth (oracle)
     . BaseWindInput       (a wind feed-forward base controller only) base_wind_ne, the base law's
                           step input: the estimate, the true mean wind or zero (base_wind_input)
-    2 PolicyObservation   observation [23]
+    2 PolicyObservation   observation [23 + B]: the paper's 23, then the B base_state_inputs channels
+    . PrivilegedObservation  (privileged_inputs only: training) privileged [P], the critic's truth
     3 RunningObsNorm      (VecNormV2) running mean/var of observation, reduce_batch_dims=True, decay=1.0
     4 ClipTransform       observation clipped to [-obs_clip, obs_clip] after normalisation
     5 ZeroInputs          (wind_input="zero" or zero_inputs only) those channels = 0: the wind's
                           (wind_fwd, wind_left) for "zero", and the zero_inputs channels
+    . ObservationStack    (memory_frames > 1 only) observation [K (23 + B)]: the last K, newest last
+    . InitTracker, TensorDictPrimer   (recurrent_hidden > 0 only) is_init, recurrent_state [1, H]
+    . RunningObsNorm, ClipTransform   (privileged_inputs only) the same for privileged
     . RewardSum, StepCounter   episode_reward, step_count for logging
 
 Everything that defines an env is in :class:`RLEnvSpec` (a frozen dataclass of plain values and
@@ -28,11 +32,15 @@ The wind estimate's post-filter time constant is ``RLEnvSpec.ema_tau_s`` (defaul
 estimator's validation flights (:func:`validated_tau_s`). How often the estimator runs is
 ``RLEnvSpec.estimate_every_s`` (default: every 10 Hz log tick, 0.1 s); the filter's time constant
 stays in seconds whatever it is. ``RLEnvSpec.zero_inputs`` names policy inputs forced to 0 in
-training and in every flight (a policy trained without them).
+training and in every flight (a policy trained without them). The learning levers are off by
+default: ``base_state_inputs`` (the base controller's state as policy inputs), ``memory_frames``
+(the last K observations) and ``privileged_inputs`` (simulator truth for the critic alone, in the
+training env alone).
 
-Trained policies record all three in their env spec, and flying them must use them:
+Trained policies record these settings in their env spec, and flying them must use them:
 :func:`policy_env_settings` reads them (with what policies saved before a setting existed used:
-their estimator checkpoint's tau, the estimator at every tick, no zeroed inputs).
+their estimator checkpoint's tau, the estimator at every tick, no zeroed inputs, no base state, no
+memory).
 """
 from __future__ import annotations
 
@@ -43,7 +51,8 @@ from functools import partial
 from typing import Literal, Mapping, TypeVar
 
 import torch
-from torchrl.envs import (ClipTransform, Compose, ParallelEnv, RemoveEmptySpecs, RewardSum, SelectTransform, StepCounter, Transform, TransformedEnv,
+from torchrl.data import Unbounded
+from torchrl.envs import (ClipTransform, Compose, InitTracker, ParallelEnv, TensorDictPrimer, RemoveEmptySpecs, RewardSum, SelectTransform, StepCounter, Transform, TransformedEnv,
                           VecNormV2)
 
 from ..config import EnvConfig
@@ -54,9 +63,12 @@ from ..envs.ray_rows import RayRowsEnv
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
-from ..keys import OBSERVATION_CHANNELS, OBSERVATION_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS
+from ..keys import (BASE_STATE_GROUPS, OBSERVATION_CHANNELS, OBSERVATION_KEY, PRIVILEGED_CHANNELS, PRIVILEGED_GROUPS,
+                    PRIVILEGED_KEY, RECURRENT_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS, named_channels)
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
-from ..transforms import BaseWindInput, EpisodeControl, PolicyObservation, RunningObsNorm, WindEstimate, ZeroInputs
+from ..transforms import (BaseWindInput, EpisodeControl, ObservationStack, PolicyObservation, PrivilegedObservation,
+                          RunningObsNorm, WindEstimate, ZeroInputs)
+from ..transforms.observation import base_state_channels
 from ..transforms.wind import estimate_stride
 
 T = TypeVar("T")
@@ -67,6 +79,8 @@ WorkersOn = Literal["local", "ray"]
 WORKERS_ON = ("local", "ray")  # where build_env's collection workers run
 DEFAULT_TRAJECTORIES = {"horizontal": HORIZONTAL, "vertical": VERTICAL}
 DEFAULT_RANGES = {"horizontal": HORIZONTAL_RL, "vertical": VERTICAL_RL}
+# RLEnvSpec.base_state_inputs: every channel of the selected base law's state
+BASE_STATE_ALL = "all"
 # s: the estimator at every 10 Hz log tick (what every policy trained before the setting existed saw)
 DEFAULT_ESTIMATE_EVERY_S = 0.1
 
@@ -112,6 +126,18 @@ class RLEnvSpec:
     # on: "estimate" (the estimator's filtered output, wind_hat), "truth" (the true mean wind: the
     # oracle) or "zero" (its blind twin); unused by every other base controller
     base_wind_input: WindInput = "estimate"
+    # the base controller's state the policy reads after the 23 channels (keys.BASE_STATE_CHANNELS
+    # names or groups the selected base law has: its force estimate, integral, feed-forward, ...; "all":
+    # every one it has); () the paper's inputs
+    base_state_inputs: tuple[str, ...] = ()
+    # simulator truth an asymmetric critic reads at training time (keys.PRIVILEGED_CHANNELS: true mean
+    # wind, turbulence, true errors), never the actor; only the training env computes it
+    privileged_inputs: tuple[str, ...] = ()
+    # the policy reads its last memory_frames observations (env steps) side by side; 1: memoryless
+    memory_frames: int = 1
+    # a recurrent actor's hidden size (a GRU over the observations; 0: none): the env then carries
+    # its hidden state between decisions and marks episode starts (is_init), where it restarts at 0
+    recurrent_hidden: int = 0
 
     def __post_init__(self):
         check_regime(self.regime)
@@ -131,6 +157,39 @@ class RLEnvSpec:
         if self.desync_steps < 0:
             raise ValueError(f"RLEnvSpec.desync_steps={self.desync_steps}; allowed: >= 0")
         self._check_zero_inputs()
+        self._check_levers()
+
+    def _check_levers(self) -> None:
+        """The base-state, privileged and memory settings: names the field, the value and the allowed ones."""
+        base = self.base_state_inputs
+        if not isinstance(base, str) and any(name in PRIVILEGED_CHANNELS or name in PRIVILEGED_GROUPS for name in base):
+            raise ValueError(f"RLEnvSpec.base_state_inputs={tuple(base)!r}: "
+                             f"{[n for n in base if n in PRIVILEGED_CHANNELS or n in PRIVILEGED_GROUPS]} are privileged "
+                             "(simulator truth): the actor never reads them; allowed for the critic only, in "
+                             "privileged_inputs (--privileged-inputs)")
+        have = base_state_channels(self.env_config) if base else ()
+        if not isinstance(base, str) and BASE_STATE_ALL in base:  # every channel the selected base law has
+            if not have:
+                raise ValueError(f"RLEnvSpec.base_state_inputs={tuple(base)!r}: this base controller keeps no state "
+                                 "(the paper's PD, the wind feed-forward law); allowed: a base with integral action or "
+                                 "a force estimate (--base-controller pid, dob, l1, ...)")
+            base = tuple(n for n in base if n != BASE_STATE_ALL) + have
+        # stored as the tuple of channels, in catalogue order (a JSON list, or a group name, is the same setting)
+        object.__setattr__(self, "base_state_inputs",
+                           named_channels(base, BASE_STATE_GROUPS, "RLEnvSpec.base_state_inputs", allowed=have))
+        object.__setattr__(self, "privileged_inputs",
+                           named_channels(self.privileged_inputs, PRIVILEGED_GROUPS, "RLEnvSpec.privileged_inputs"))
+        frames = self.memory_frames
+        if not isinstance(frames, int) or isinstance(frames, bool) or frames < 1:
+            raise ValueError(f"RLEnvSpec.memory_frames={frames!r}; allowed: a whole number >= 1 (1: memoryless)")
+        hidden = self.recurrent_hidden
+        if not isinstance(hidden, int) or isinstance(hidden, bool) or hidden < 0:
+            raise ValueError(f"RLEnvSpec.recurrent_hidden={hidden!r}; allowed: a whole number >= 0 (0: no recurrent actor)")
+
+    @property
+    def observation_channels(self) -> tuple[str, ...]:
+        """The channels of one frame of the policy's observation: the 23, then ``base_state_inputs``."""
+        return OBSERVATION_CHANNELS + self.base_state_inputs
 
     def _check_zero_inputs(self) -> None:
         value = self.zero_inputs
@@ -175,7 +234,8 @@ def _row_transforms(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slic
         WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg,
                      every_s=spec.estimate_every_s),
         *base_wind,
-        PolicyObservation(cfg),
+        PolicyObservation(cfg, base_channels=spec.base_state_inputs),
+        *([PrivilegedObservation(spec.privileged_inputs)] if spec.privileged_inputs else []),
     ]
 
 
@@ -185,8 +245,17 @@ def _batch_transforms(spec: RLEnvSpec) -> list[Transform]:
     transforms = [RunningObsNorm(in_keys=[OBSERVATION_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True)]
     if spec.obs_clip is not None:
         transforms.append(ClipTransform(in_keys=[OBSERVATION_KEY], low=-spec.obs_clip, high=spec.obs_clip))
-    if spec.zeroed_channels:  # one transform, last: every other input stays bit-identical
+    if spec.zeroed_channels:  # one transform, last of the per-frame ones: every other input stays bit-identical
         transforms.append(ZeroInputs(spec.zeroed_channels))
+    if spec.memory_frames > 1:  # the stack holds the policy's inputs as it reads them: normalised, clipped, zeroed
+        transforms.append(ObservationStack(spec.memory_frames))
+    if spec.recurrent_hidden:  # episode starts, and the hidden state the actor carries (0 at a reset)
+        transforms += [InitTracker(), TensorDictPrimer({RECURRENT_KEY: Unbounded(shape=(1, spec.recurrent_hidden))},
+                                                       expand_specs=True)]
+    if spec.privileged_inputs:  # the critic's own normalisation (saved in training checkpoints, never in a policy)
+        transforms.append(RunningObsNorm(in_keys=[PRIVILEGED_KEY], decay=1.0, eps=1e-4, reduce_batch_dims=True))
+        if spec.obs_clip is not None:
+            transforms.append(ClipTransform(in_keys=[PRIVILEGED_KEY], low=-spec.obs_clip, high=spec.obs_clip))
     return transforms + [RewardSum(in_keys=["reward"], out_keys=["episode_reward"], reset_keys=["_reset"]), StepCounter()]
 
 
@@ -217,7 +286,8 @@ def _row_worker(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slice, t
     # the parent gets what the policy and the trainer read (the observation, reward and ends): every
     # entry a worker returns is copied through shared memory at every step, and the full record
     # (sensors, truth, navigation, ...) cost the parent 6-9 ms a step (docs/benchmarks.md)
-    keep = SelectTransform(OBSERVATION_KEY, keep_rewards=True, keep_dones=True)
+    keep = SelectTransform(OBSERVATION_KEY, *([PRIVILEGED_KEY] if spec.privileged_inputs else []), keep_rewards=True,
+                           keep_dones=True)
     return RowWorkerEnv(_base_env(spec, rows), Compose(*_row_transforms(spec, estimator, rows), keep, RemoveEmptySpecs()))
 
 
@@ -325,15 +395,20 @@ def recipe_estimate_every_s(tau_s: float, log_dt_s: float) -> float:
 def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> dict:
     """The :class:`RLEnvSpec` settings a saved policy trained with and must fly with, from its
     checkpoint's ``env_spec``, as ``make_env`` keywords: ``ema_tau_s``, ``estimate_every_s``,
-    ``zero_inputs`` and ``base_wind_input``. Policies saved before the spec recorded a setting trained with: the tau their
-    estimator's checkpoint held (the env then read it from there; else the default), the estimator
-    at every log tick, no zeroed inputs."""
+    ``zero_inputs``, ``base_wind_input``, ``base_state_inputs`` and ``memory_frames`` (never
+    ``privileged_inputs``: the critic's, at training time only). Policies saved before the spec
+    recorded a setting trained with: the tau their estimator's checkpoint held (the env then read
+    it from there; else the default), the estimator at every log tick, no zeroed inputs, no base
+    state, no memory."""
     tau = env_spec["ema_tau_s"] if "ema_tau_s" in env_spec else getattr(estimator, "ema_tau_s", None)
     return {
         "ema_tau_s": DEFAULT_TAU_S if tau is None else float(tau),
         "estimate_every_s": float(env_spec.get("estimate_every_s", DEFAULT_ESTIMATE_EVERY_S)),
         "zero_inputs": tuple(env_spec.get("zero_inputs", ())),
         "base_wind_input": env_spec.get("base_wind_input", "estimate"),
+        "base_state_inputs": tuple(env_spec.get("base_state_inputs", ())),
+        "memory_frames": int(env_spec.get("memory_frames", 1)),
+        "recurrent_hidden": int(env_spec.get("recurrent_hidden", 0)),
     }
 
 
@@ -377,8 +452,13 @@ def find_transform(env: TransformedEnv, cls: type[T]) -> T:
     raise KeyError(f"no {cls.__name__} in this env's transforms")
 
 
-def vecnorm(env: TransformedEnv) -> VecNormV2:
-    return find_transform(env, VecNormV2)
+def vecnorm(env: TransformedEnv, key: str = OBSERVATION_KEY) -> VecNormV2:
+    """The running normalisation of ``key`` (the policy's ``observation``; ``keys.PRIVILEGED_KEY``:
+    the asymmetric critic's)."""
+    for t in env.transform:
+        if isinstance(t, VecNormV2) and key in t.in_keys:
+            return t
+    raise KeyError(f"no VecNormV2 of {key!r} in this env's transforms")
 
 
 def episode_control(env: TransformedEnv) -> EpisodeControl:
@@ -389,13 +469,13 @@ def wind_estimate(env: TransformedEnv) -> WindEstimate:
     return find_transform(env, WindEstimate)
 
 
-def vecnorm_state_dict(env: TransformedEnv) -> dict:
-    """The normalisation statistics (a plain, ``torch.load(weights_only=True)``-able dict)."""
-    return dict(vecnorm(env).state_dict())
+def vecnorm_state_dict(env: TransformedEnv, key: str = OBSERVATION_KEY) -> dict:
+    """The normalisation statistics of ``key`` (a plain, ``torch.load(weights_only=True)``-able dict)."""
+    return dict(vecnorm(env, key).state_dict())
 
 
-def load_vecnorm_state(env: TransformedEnv, state: dict) -> None:
-    vecnorm(env).load_state_dict(state)
+def load_vecnorm_state(env: TransformedEnv, state: dict, key: str = OBSERVATION_KEY) -> None:
+    vecnorm(env, key).load_state_dict(state)
 
 
 @dataclass

@@ -77,13 +77,13 @@ class EvaluationResult:
 def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int, jobs: mp.Queue, results: mp.Queue
            ) -> None:
     """The child: build the eval env and an actor once, then evaluate each job until ``None``."""
-    from .policy import build_actor_critic
+    from .policy import build_actor_critic, network_dims
 
     try:
         if cfg.threads:
             torch.set_num_threads(cfg.threads)
         env = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
-        actor = build_actor_critic(cfg)[0].to(factory.spec.device)
+        actor = build_actor_critic(cfg, **network_dims(factory.spec))[0].to(factory.spec.device)
         pd_eval = None
         while (job := jobs.get()) is not None:
             job = from_bytes(job)

@@ -4,28 +4,33 @@ Initialisation follows SB3: orthogonal weights, gain sqrt(2) in the hidden layer
 action mean (the initial deterministic policy is ~ the PD baseline), 1 on the value output.
 
 A policy file (``policy.pt``, or a training checkpoint, which adds the value network, optimiser,
-RNG and progress) is the dict :func:`policy_payload` makes; :func:`load_policy` reads either.
+RNG and progress) is the dict :func:`policy_payload` makes; :func:`load_policy` reads either and
+rebuilds the actor the file's env spec describes (its base-state inputs and memory:
+:func:`network_dims`; files from before these settings: the paper's 23 inputs).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import asdict, fields
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
-from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
+import torch
+from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.envs.utils import ExplorationType
-from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
+from torchrl.modules import GRUModule, ProbabilisticActor, TanhNormal, ValueOperator
 
 from ..config import config_to_dict
-from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM
+from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM, OBSERVATION_KEY, PRIVILEGED_KEY, RECURRENT_KEY
 from ..manifest import repo_relative
 from ..validation import load_checkpoint
 from .config import ACTIVATIONS, PPOConfig
 from .envs import RLEnvSpec
 
 CHECKPOINT_FORMAT = 1
+# what a recurrent actor's GRU hands its MLP
+MEMORY_KEY = "memory"
 
 
 def _mlp(sizes: Sequence[int], activation: type[nn.Module], out_gain: float) -> nn.Sequential:
@@ -41,30 +46,86 @@ def _mlp(sizes: Sequence[int], activation: type[nn.Module], out_gain: float) -> 
     return nn.Sequential(*layers)
 
 
+class _ConcatInputs(nn.Module):
+    """An MLP over its inputs side by side (the asymmetric critic: observation and privileged)."""
+
+    def __init__(self, mlp: nn.Sequential):
+        super().__init__()
+        self.mlp = mlp
+
+    def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
+        return self.mlp(torch.cat(inputs, -1))
+
+
+def network_dims(env_spec: RLEnvSpec | Mapping) -> dict[str, int]:
+    """The networks' input widths for an env spec (an :class:`RLEnvSpec` or a policy file's
+    ``env_spec``; older files lack the learning levers' settings and get the paper's 23 inputs):
+    ``obs_dim`` = (23 + base-state channels) x memory frames, ``privileged_dim`` = the critic's
+    privileged channels; :func:`build_actor_critic` keywords."""
+    get = (lambda name, default: getattr(env_spec, name)) if isinstance(env_spec, RLEnvSpec) else env_spec.get
+    per_frame = OBSERVATION_DIM + len(get("base_state_inputs", ()))
+    return {"obs_dim": per_frame * int(get("memory_frames", 1)), "privileged_dim": len(get("privileged_inputs", ())),
+            "recurrent_hidden": int(get("recurrent_hidden", 0))}
+
+
+def check_recurrent(cfg: PPOConfig, spec: RLEnvSpec) -> None:
+    """Refuse, naming the fields, the PPO settings a recurrent actor (``spec.recurrent_hidden``)
+    cannot train with: its update takes whole rows of a batch as sequences (a minibatch of
+    ``minibatch / steps_per_env`` rows, so the hidden state runs through each row's steps in order),
+    and its collection runs in this process (the hidden state through collection workers or Ray
+    actors is not verified)."""
+    if not spec.recurrent_hidden:
+        return
+    if cfg.minibatch % cfg.steps_per_env:
+        raise ValueError(f"RLEnvSpec.recurrent_hidden={spec.recurrent_hidden}: PPOConfig.minibatch={cfg.minibatch} must be "
+                         f"a multiple of steps_per_env={cfg.steps_per_env} (a recurrent minibatch is whole rows of the "
+                         "batch; --steps-per-env)")
+    if cfg.collect_workers != 1 or cfg.collector != "local":
+        raise ValueError(f"RLEnvSpec.recurrent_hidden={spec.recurrent_hidden}: PPOConfig.collect_workers="
+                         f"{cfg.collect_workers}, collector={cfg.collector!r}; allowed with a recurrent actor: "
+                         "collect_workers=1, collector='local' (the hidden state is carried in this process)")
+
+
 def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_dim: int = 4,
-                       action_low: float = -1.0, action_high: float = 1.0) -> tuple[ProbabilisticActor, ValueOperator]:
-    """TanhNormal actor (``observation`` -> ``action``, ``action_log_prob``) and value critic."""
+                       action_low: float = -1.0, action_high: float = 1.0, *,
+                       privileged_dim: int = 0, recurrent_hidden: int = 0) -> tuple[ProbabilisticActor, ValueOperator]:
+    """TanhNormal actor (``observation`` -> ``action``, ``action_log_prob``) and value critic
+    (``observation``, and with ``privileged_dim`` > 0 also ``privileged``: the asymmetric critic,
+    whose extra inputs the actor never reads). With ``recurrent_hidden`` > 0 the actor reads its
+    observations through a GRU of that size (TorchRL's ``GRUModule``: hidden state
+    ``recurrent_state``, restarted at 0 where ``is_init``) before its MLP."""
     act = ACTIVATIONS[cfg.activation]
     sizes = (obs_dim, *cfg.hidden)
-    net = nn.Sequential(
-        _mlp((*sizes, action_dim), act, 0.01),
-        AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=math.log(cfg.init_scale)),
-    )
+    scale = AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=math.log(cfg.init_scale))
+    if recurrent_hidden:
+        memory = GRUModule(input_size=obs_dim, hidden_size=recurrent_hidden, in_keys=[OBSERVATION_KEY, RECURRENT_KEY, "is_init"],
+                           out_keys=[MEMORY_KEY, ("next", RECURRENT_KEY)])
+        head = TensorDictModule(nn.Sequential(_mlp((recurrent_hidden, *cfg.hidden, action_dim), act, 0.01), scale),
+                                in_keys=[MEMORY_KEY], out_keys=["loc", "scale"])
+        module = TensorDictSequential(memory, head)
+    else:  # the paper's actor, with the parameter names of every policy file before the recurrent one
+        module = TensorDictModule(nn.Sequential(_mlp((*sizes, action_dim), act, 0.01), scale), in_keys=[OBSERVATION_KEY],
+                                  out_keys=["loc", "scale"])
     actor = ProbabilisticActor(
-        TensorDictModule(net, in_keys=["observation"], out_keys=["loc", "scale"]),
+        module,
         in_keys=["loc", "scale"],
         distribution_class=TanhNormal,
         distribution_kwargs={"low": action_low, "high": action_high},
         return_log_prob=True,
         default_interaction_type=ExplorationType.DETERMINISTIC,
     )
-    value = ValueOperator(_mlp((*sizes, 1), act, 1.0), in_keys=["observation"])
+    if privileged_dim:
+        value = ValueOperator(_ConcatInputs(_mlp((obs_dim + privileged_dim, *cfg.hidden, 1), act, 1.0)),
+                              in_keys=[OBSERVATION_KEY, PRIVILEGED_KEY])
+    else:  # the paper's critic, with the parameter names of every policy file before the asymmetric one
+        value = ValueOperator(_mlp((*sizes, 1), act, 1.0), in_keys=[OBSERVATION_KEY])
     return actor, value
 
 
 def action_scale(actor: ProbabilisticActor) -> float:
     """Mean standard deviation of the pre-tanh Normal (the state-independent exploration scale)."""
-    return float(actor.module[0].module[-1].state_independent_scale.detach().exp().mean())
+    scale = next(m for m in actor.modules() if isinstance(m, AddStateIndependentNormalScale))
+    return float(scale.state_independent_scale.detach().exp().mean())
 
 
 def spec_to_dict(spec: RLEnvSpec) -> dict:
@@ -90,7 +151,7 @@ def policy_payload(actor: ProbabilisticActor, vecnorm_state: dict, cfg: PPOConfi
         "vecnorm": vecnorm_state,
         "ppo_config": asdict(cfg),
         "env_spec": spec_to_dict(spec),
-        "observation_channels": list(OBSERVATION_CHANNELS),
+        "observation_channels": list(spec.observation_channels),  # one frame's
     }
 
 
@@ -101,11 +162,15 @@ def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dic
     vecnorm_state=...)``; ``payload["ppo_config"]`` / ``payload["env_spec"]`` describe the run."""
     payload = load_checkpoint(path, "policy", device)
     saved = payload.get("observation_channels")
-    if saved is not None and list(saved) != list(OBSERVATION_CHANNELS):
+    expected = list(OBSERVATION_CHANNELS) + list(payload["env_spec"].get("base_state_inputs", ()))
+    if saved is not None and list(saved) != expected:
         raise ValueError(f"{path} was trained on another observation layout ({len(saved)} channels: {saved}); "
-                         f"this version's is keys.OBSERVATION_CHANNELS ({OBSERVATION_DIM} channels)")
+                         f"this version's is keys.OBSERVATION_CHANNELS ({OBSERVATION_DIM} channels) followed by the "
+                         f"policy's base_state_inputs: {expected}")
     cfg = payload["ppo_config"]
     cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
-    actor, _ = build_actor_critic(cfg)
+    # the actor reads no privileged input: the file's critic, if any, is not rebuilt here
+    dims = network_dims(payload["env_spec"])
+    actor, _ = build_actor_critic(cfg, dims["obs_dim"], recurrent_hidden=dims["recurrent_hidden"])
     actor.load_state_dict(payload["policy"])
     return actor.to(device).eval(), payload

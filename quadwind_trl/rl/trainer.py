@@ -28,14 +28,14 @@ from ..config import EnvConfig, config_differences, config_from_dict
 from ..estimator import WindEstimator
 from ..manifest import command_line, git_commit, platform_info, repo_relative, save_atomic, write_json
 from ..outputs import OutputLock, truncate_scalar_logs
-from ..keys import OBSERVATION_CHANNELS
+from ..keys import PRIVILEGED_KEY
 from . import collection
 from .config import Curriculum, PPOConfig
 from .envs import (EnvFactory, RLEnvSpec, estimator_seconds, load_vecnorm_state, policy_env_settings, set_trajectories,
                    vecnorm_state_dict)
 from .evaluator import BackgroundEvaluator, evaluate_against_pd, from_bytes, to_bytes
 from .paired import VALIDATION_TAIL_FRACTION
-from .policy import action_scale, build_actor_critic, policy_payload, spec_to_dict
+from .policy import action_scale, build_actor_critic, check_recurrent, network_dims, policy_payload, spec_to_dict
 from .update import PPOUpdate
 
 
@@ -73,8 +73,10 @@ def check_same_env(saved: dict, spec: RLEnvSpec, estimator: WindEstimator | None
     if differ:
         raise ResumeMismatch(f"resume: the env config differs from the checkpoint's run in {', '.join(differ)} "
                              "(e.g. --sensing, --reward-w-z); resume with the run's settings or start a new --out")
-    before = {"wind_input": saved.get("wind_input"), **policy_env_settings(saved, estimator)}
-    now = {"wind_input": spec.wind_input, **policy_env_settings(spec_to_dict(spec), estimator)}
+    before = {"wind_input": saved.get("wind_input"), "privileged_inputs": tuple(saved.get("privileged_inputs", ())),
+              **policy_env_settings(saved, estimator)}
+    now = {"wind_input": spec.wind_input, "privileged_inputs": spec.privileged_inputs,
+           **policy_env_settings(spec_to_dict(spec), estimator)}
     for name, value in now.items():
         # zeroed inputs are a set: the order they were named in changes nothing
         same = set(value) == set(before[name]) if name == "zero_inputs" else value == before[name]
@@ -184,6 +186,7 @@ class PPOTrainer:
         stop_when: Callable[[list[dict]], bool] | None = None,
     ):
         self.cfg = cfg.validate()
+        check_recurrent(self.cfg, env_spec)
         if env_spec.num_envs != cfg.num_envs:
             env_spec = replace(env_spec, num_envs=cfg.num_envs)
         self.spec = env_spec
@@ -281,7 +284,7 @@ class PPOTrainer:
         the seeded steps is the run's: a resumed run repeats the same random streams)."""
         cfg, spec = self.cfg, self.spec
         torch.manual_seed(cfg.seed)
-        actor, value = build_actor_critic(cfg)
+        actor, value = build_actor_critic(cfg, **network_dims(spec))
         learner = PPOUpdate(actor.to(spec.device), value.to(spec.device), cfg)
         progress = Progress()
         checkpoint = None
@@ -305,13 +308,17 @@ class PPOTrainer:
             learner.check_frozen(network)
         if checkpoint is not None:
             load_vecnorm_state(env, checkpoint["vecnorm"])
+            if spec.privileged_inputs:
+                load_vecnorm_state(env, checkpoint["privileged_vecnorm"], PRIVILEGED_KEY)
         if self.curriculum is not None:
             self._apply_stage(env, progress.stage, truncate=False)
         eval_env = evaluator = None
+        # the evaluations fly the policy as every later flight does: without the critic's privileged inputs
+        eval_factory = EnvFactory(replace(spec, privileged_inputs=()), bundle=self.factory.estimator())
         if self.eval_scenarios is not None and cfg.background_eval:
-            evaluator = BackgroundEvaluator(self.factory, self.eval_scenarios, cfg, seed=spec.seed + 1)
+            evaluator = BackgroundEvaluator(eval_factory, self.eval_scenarios, cfg, seed=spec.seed + 1)
         elif self.eval_scenarios is not None:
-            eval_env = self.factory(num_envs=self.eval_scenarios.batch_size[0], seed=spec.seed + 1, desync_steps=0)
+            eval_env = eval_factory(num_envs=self.eval_scenarios.batch_size[0], seed=spec.seed + 1, desync_steps=0)
         result = PPOResult(self.out_dir, progress.frames, progress.iteration, evals=list(progress.evals))
         s = _Session(learner, env, eval_env, evaluator, progress, self._make_logger(progress), result,
                      wall0=time.perf_counter() - progress.wall)
@@ -397,7 +404,7 @@ class PPOTrainer:
             snapshot, actor = from_bytes(policy), s.learner.actor
             if frames != p.frames:  # a snapshot a resumed checkpoint held in flight: its own actor
                 with torch.random.fork_rng():  # building it draws initial weights: not from the run's stream
-                    actor = build_actor_critic(self.cfg)[0].to(self.spec.device)
+                    actor = build_actor_critic(self.cfg, **network_dims(self.spec))[0].to(self.spec.device)
                 actor.load_state_dict(snapshot["policy"])
             metrics, p.pd_eval = evaluate_against_pd(s.eval_env, actor, snapshot["vecnorm"], self.eval_scenarios, p.pd_eval)
             self._record_evaluation(s, frames, iteration, policy, metrics)
@@ -437,6 +444,8 @@ class PPOTrainer:
         s.tick()
         payload = policy_payload(s.learner.actor, vecnorm_state_dict(s.env), self.cfg, self.spec)
         payload.update(s.learner.state_dict(), rng=torch.random.get_rng_state(), progress=asdict(p))
+        if self.spec.privileged_inputs:  # the critic's normalisation: a resume needs it, a policy file never
+            payload["privileged_vecnorm"] = vecnorm_state_dict(s.env, PRIVILEGED_KEY)
         # background evaluations not yet back: a resumed run flies them again
         payload["evals_in_flight"] = [{"frames": f, "iteration": i, "policy": policy} for f, (i, policy) in s.in_flight.items()]
         save_atomic(payload, self.checkpoint_path)
@@ -497,7 +506,7 @@ class PPOTrainer:
             "estimator": {"path": None if self.spec.estimator_path is None else repo_relative(self.spec.estimator_path),
                           "untrained": self.spec.untrained_estimator,
                           "manifest": getattr(est, "manifest", None)},
-            "observation_channels": list(OBSERVATION_CHANNELS),
+            "observation_channels": list(self.spec.observation_channels),
             "frames": p.frames,
             "iterations": p.iteration,
             "wall_time_s": round(p.wall, 1),

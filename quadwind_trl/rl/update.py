@@ -6,13 +6,16 @@ confirms at start-up that no estimator parameter is among them.
 """
 from __future__ import annotations
 
+import contextlib
+
 import torch
 from tensordict import TensorDictBase
 from torch import nn
-from torchrl.modules import ProbabilisticActor, ValueOperator
+from torchrl.modules import GRUModule, ProbabilisticActor, ValueOperator, set_recurrent_mode
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from ..keys import RECURRENT_KEY
 from ..manifest import CheckpointParts
 from .config import PPOConfig
 from .reward_scale import ReturnScale
@@ -39,6 +42,13 @@ class PPOUpdate(CheckpointParts):
             loss_critic_type=cfg.loss_critic_type, normalize_advantage=cfg.normalize_advantage,
         )  # fmt: skip
         self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=value, average_gae=False)
+        # the critic's inputs beside the actor's (an asymmetric critic's privileged ones), now and next
+        extra = [k for k in value.in_keys if k != "observation"]
+        self.batch_keys = BATCH_KEYS + tuple(extra) + tuple(("next", k) for k in extra)
+        # a recurrent actor re-reads each row's steps in order from the hidden state collected at its start
+        self.recurrent = any(isinstance(m, GRUModule) for m in actor.modules())
+        if self.recurrent:
+            self.batch_keys += (RECURRENT_KEY, "is_init")
         self.params = list(self.loss.parameters())
         self.optim = torch.optim.Adam(self.params, lr=cfg.lr, eps=1e-5)  # SB3's Adam eps
         self.return_scale = None
@@ -59,17 +69,21 @@ class PPOUpdate(CheckpointParts):
         cfg = self.cfg
         for group in self.optim.param_groups:  # set every update, so a resumed run follows the schedule
             group["lr"] = cfg.lr if lr is None else lr
-        batch = data.select(*BATCH_KEYS)
+        batch = data.select(*self.batch_keys)
         with torch.no_grad():
             if self.return_scale is not None:
                 self.return_scale(batch)  # the select's leaves are the collector's: set, not written in place
             self.gae(batch)
-        flat = batch.reshape(-1)
+        if self.recurrent:  # minibatches of whole rows [rows, T], run as sequences (check_recurrent: whole rows fit)
+            units, per_minibatch, mode = batch, cfg.minibatch // batch.shape[-1], set_recurrent_mode(True)
+        else:  # minibatches of single steps
+            units, per_minibatch, mode = batch.reshape(-1), cfg.minibatch, contextlib.nullcontext()
         sums: dict[str, torch.Tensor] = {}  # summed on the device: one sync per update
         steps = 0
         for _ in range(cfg.epochs):
-            for idx in torch.randperm(flat.batch_size[0], generator=generator).split(cfg.minibatch):
-                out = self.loss(flat[idx])
+            for idx in torch.randperm(units.batch_size[0], generator=generator).split(per_minibatch):
+                with mode:
+                    out = self.loss(units[idx])
                 total = out["loss_objective"] + out["loss_critic"] + out["loss_entropy"]
                 self.optim.zero_grad(set_to_none=True)
                 total.backward()

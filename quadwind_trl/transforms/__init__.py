@@ -8,7 +8,11 @@
 * :class:`ZeroInputs`: named policy inputs forced to 0 (the ablations: the two wind inputs, or
   others a policy trains without).
 * :class:`PolicyObservation`: the paper's 23-dim ``observation`` (layout and keys:
-  :mod:`quadwind_trl.keys`, wind at ``WIND_INDICES``, looked up by channel name).
+  :mod:`quadwind_trl.keys`, wind at ``WIND_INDICES``, looked up by channel name), optionally
+  followed by named channels of the base controller's state.
+* :class:`PrivilegedObservation`: simulator truth (true mean wind, turbulence, true errors) for an
+  asymmetric critic at training time only (``privileged``).
+* :class:`ObservationStack`: the last K observations side by side (a policy with memory).
 * :class:`EpisodeControl`: de-synchronised first episodes, truncation on request (training).
 * :class:`RunningObsNorm`: ``VecNormV2`` (running mean/variance) without its NaN on constant
   channels.
@@ -30,14 +34,17 @@ Composing them (``quadwind_trl.rl.envs.make_env`` builds the full training stack
 """
 from .base_wind import BaseWindInput
 from .episode import EpisodeControl
+from .memory import ObservationStack
 from .normalization import RunningObsNorm
-from .observation import PolicyObservation, ZeroInputs
+from .observation import PolicyObservation, PrivilegedObservation, ZeroInputs
 from .wind import WindEstimate
 
 __all__ = [
     "BaseWindInput",
     "EpisodeControl",
+    "ObservationStack",
     "PolicyObservation",
+    "PrivilegedObservation",
     "RunningObsNorm",
     "WindEstimate",
     "ZeroInputs",

@@ -54,8 +54,19 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Transform
 
 from ..config import GRAVITY_M_S2, EnvConfig
+from ..envs.controller import make_base_controller
 from ..estimator.features import FeatureExtractor
-from ..keys import MEAS_KEY, OBSERVATION_DIM, OBSERVATION_KEY, WIND_KEY, observation_index
+from ..keys import (BASE_STATE_GROUPS, BASE_STATE_KEY, MEAS_KEY, OBSERVATION_DIM, OBSERVATION_KEY,
+                    PRIVILEGED_CHANNELS, PRIVILEGED_KEY, WIND_KEY, observation_index)
+
+#: base-state group -> the entries of the base law's state (``env.base``) it is computed from (any of them)
+BASE_STATE_SOURCES: dict[str, tuple[str, ...]] = {
+    "force": ("force_hat",),  # disturbance observer, L1
+    "thrust": ("thrust_hat",),  # disturbance observer, L1
+    "integral": ("integral",),  # integral action (PID)
+    "vel_err": ("vel_hat",),  # L1
+    "ff": ("integral", "force_hat"),  # -Ki I - F_hat / m: integral action and / or a force estimate
+}
 
 
 def to_heading_frame(east: torch.Tensor, north: torch.Tensor, yaw: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -65,19 +76,49 @@ def to_heading_frame(east: torch.Tensor, north: torch.Tensor, yaw: torch.Tensor)
     return c * east + s * north, -s * east + c * north
 
 
+def base_state_channels(config: EnvConfig) -> tuple[str, ...]:
+    """The :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS` the base controller of ``config`` has
+    (none for the paper's stateless PD or the wind feed-forward law), in catalogue order."""
+    c = config.controller
+    state = make_base_controller(c, config.vehicle, config.timing.control_dt_s).init_state(1, torch.device("cpu"))
+    entries = set(state.keys()) if state is not None else set()
+    return tuple(ch for group, chans in BASE_STATE_GROUPS.items() if entries & set(BASE_STATE_SOURCES[group])
+                 for ch in chans)
+
+
+def _heading_vector(vec: torch.Tensor, yaw: torch.Tensor) -> dict[str, torch.Tensor]:
+    """World ENU ``[N, 3]`` -> {fwd, left, U} ``[N, 1]`` each (heading frame of ``yaw`` ``[N, 1]``)."""
+    fwd, left = to_heading_frame(vec[..., 0:1], vec[..., 1:2], yaw)
+    return {"fwd": fwd, "left": left, "U": vec[..., 2:3]}
+
+
 class PolicyObservation(Transform):
-    """Concatenates the 23 policy inputs into ``out_key`` (default ``"observation"``).
+    """Concatenates the 23 policy inputs into ``out_key`` (default ``"observation"``), and after
+    them the base controller's state channels ``base_channels`` (names of
+    :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS`, read from the env's ``base`` entry; default
+    none: the paper's 23).
 
     Reads ``meas``, ``ref_pos``, ``ref_yaw``, ``pos_error``, ``pd_wrench``, ``ff_wrench`` and
     ``wind_key`` (``"wind_hat"``, written by :class:`~quadwind_trl.transforms.wind.WindEstimate`);
     leaves them in place. Stateless.
     """
 
-    def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = OBSERVATION_KEY):
+    def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = OBSERVATION_KEY,
+                 base_channels: Sequence[str] = ()):
         cfg = config or EnvConfig()
         in_keys = [MEAS_KEY, "ref_pos", "ref_yaw", "pos_error", "pd_wrench", "ff_wrench", wind_key]
+        self.base_channels = tuple(base_channels)
+        if self.base_channels:
+            have = base_state_channels(cfg)
+            wrong = [c for c in self.base_channels if c not in have]
+            if wrong:
+                raise ValueError(f"PolicyObservation(base_channels={self.base_channels!r}): {wrong} are not channels of "
+                                 f"this base controller; allowed: {have}")
+            in_keys.append("nav_vel")
         super().__init__(in_keys=in_keys, out_keys=[out_key])
         self.wind_key, self.out_key = wind_key, out_key
+        self.mass_kg = cfg.vehicle.mass_kg
+        self.register_buffer("ki", torch.tensor(cfg.controller.ki_pos, dtype=torch.float32), persistent=False)
         # the kinematic block through the feature code itself (a stateless vertical-schema step;
         # its 13 first channels are the shared kinematic channels)
         self._kin = FeatureExtractor("vertical", mass_kg=cfg.vehicle.mass_kg, log_dt_s=cfg.timing.log_dt_s)
@@ -108,8 +149,32 @@ class PolicyObservation(Transform):
             ),
             -1,
         )
+        if self.base_channels:  # a constructor constant: without them the observation is the paper's, bit for bit
+            obs = torch.cat((obs, self._base_state(next_tensordict, yaw.unsqueeze(-1))), -1)
         next_tensordict.set(self.out_key, obs)
         return next_tensordict
+
+    def _base_state(self, td: TensorDictBase, yaw: torch.Tensor) -> torch.Tensor:
+        """The ``base_channels`` of the base law's state after this step, ``[N, B]``."""
+        state = td.get(BASE_STATE_KEY)
+        parts: dict[str, torch.Tensor] = {}
+        force = state.get("force_hat", None)
+        integral = state.get("integral", None)
+        if force is not None:
+            parts.update({f"base_force_{k}": v for k, v in _heading_vector(force, yaw).items()})
+            parts["base_thrust_over_weight"] = state.get("thrust_hat") / (self.mass_kg * GRAVITY_M_S2)
+        if integral is not None:
+            parts.update({f"base_int_{k}": v for k, v in _heading_vector(integral, yaw).items()})
+        vel_hat = state.get("vel_hat", None)
+        if vel_hat is not None:
+            parts.update({f"base_vel_err_{k}": v for k, v in _heading_vector(vel_hat - td.get("nav_vel"), yaw).items()})
+        # what the outer loop adds to its desired acceleration (envs.controller.CascadeController)
+        ff = None if integral is None else -self.ki.to(yaw.device) * integral
+        if force is not None:
+            ff = -force / self.mass_kg if ff is None else ff - force / self.mass_kg
+        if ff is not None:
+            parts.update({f"base_ff_{k}": v for k, v in _heading_vector(ff, yaw).items()})
+        return torch.cat([parts[c] for c in self.base_channels], -1)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return self._call(tensordict_reset)
@@ -119,8 +184,55 @@ class PolicyObservation(Transform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         observation_spec[self.out_key] = Unbounded(
-            shape=(*observation_spec.shape, OBSERVATION_DIM), device=observation_spec.device
+            shape=(*observation_spec.shape, OBSERVATION_DIM + len(self.base_channels)), device=observation_spec.device
         )
+        return observation_spec
+
+
+class PrivilegedObservation(Transform):
+    """The simulator truth an asymmetric critic reads at training time: ``channels`` (names of
+    :data:`~quadwind_trl.keys.PRIVILEGED_CHANNELS`) into ``out_key`` (default ``"privileged"``),
+    horizontal parts in the heading frame of the measured yaw, as the observation's.
+
+    Reads the env's ``truth`` entries (``mean_wind``, ``wind``, ``pos``, ``vel``) and the reference
+    (``ref_pos``, ``ref_vel``); leaves them in place. Stateless. Only the training env has it: the
+    actor never reads ``out_key``, so a policy flies without it.
+    """
+
+    def __init__(self, channels: Sequence[str], *, out_key: str = PRIVILEGED_KEY):
+        self.channels = tuple(channels)
+        unknown = [c for c in self.channels if c not in PRIVILEGED_CHANNELS]
+        if unknown or not self.channels:
+            raise ValueError(f"PrivilegedObservation(channels={self.channels!r}): unknown {unknown}; allowed: one or "
+                             f"more of {PRIVILEGED_CHANNELS}")
+        in_keys = [("truth", "mean_wind"), ("truth", "wind"), ("truth", "pos"), ("truth", "vel"), "ref_pos", "ref_vel",
+                   (MEAS_KEY, "attitude")]
+        super().__init__(in_keys=in_keys, out_keys=[out_key])
+        self.out_key = out_key
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        td = next_tensordict
+        yaw = td.get((MEAS_KEY, "attitude"))[..., 2:3]
+        mean = td.get(("truth", "mean_wind"))
+        vectors = {"mean_wind": mean, "turb": td.get(("truth", "wind")) - mean,
+                   "true_err": td.get(("truth", "pos")) - td.get("ref_pos"),
+                   "true_vel_err": td.get(("truth", "vel")) - td.get("ref_vel")}
+        parts = {}
+        for prefix, vec in vectors.items():
+            if any(c.startswith(prefix + "_") for c in self.channels):
+                parts.update({f"{prefix}_{k}": v for k, v in _heading_vector(vec, yaw).items()})
+        td.set(self.out_key, torch.cat([parts[c] for c in self.channels], -1))
+        return td
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        observation_spec[self.out_key] = Unbounded(shape=(*observation_spec.shape, len(self.channels)),
+                                                   device=observation_spec.device)
         return observation_spec
 
 
