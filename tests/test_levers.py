@@ -341,10 +341,12 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
     # and the ablation's flights of it (the residual and its base alone), as every later evaluation flies it
     from quadwind_trl.evaluation.ablation import fly_controllers
 
-    flown = fly_controllers("horizontal", sc, out / "policy.pt", untrained_estimator("horizontal"), ("pd", "aware"),
+    flown = fly_controllers("horizontal", sc, out / "policy.pt", untrained_estimator("horizontal"), ("pd", "aware", "pid"),
                             log_keys=("step",))
     assert torch.equal(flown["aware"].rmse_xy, result.rmse_xy)  # the same flight
     assert not torch.equal(flown["aware"].rmse_xy, flown["pd"].rmse_xy)
+    # a classical row beside it flies its own law, whose state lacks the observer's force channels
+    assert torch.isfinite(flown["pid"].rmse_xy).all() and not torch.equal(flown["pid"].rmse_xy, flown["pd"].rmse_xy)
     # a resume must give the critic the same inputs
     with pytest.raises(ResumeMismatch, match=r"RLEnvSpec\.privileged_inputs=\(\) but the checkpoint's run used"):
         check_same_env(payload["env_spec"], replace(spec, privileged_inputs=()), None)

@@ -334,7 +334,7 @@ def test_quick_horizontal_recipe_as_the_toy_pipeline_runs_it(tmp_path):
     assert m["env_spec"]["env_config"]["controller"]["feedback"] == "estimate"  # the shipped vehicle by default
     assert m["env_spec"]["estimator_path"] == "quadwind_trl/checkpoints/estimator_horizontal.pt"  # repository-relative
     kept = next(line for line in proc.stdout.splitlines() if line.startswith("kept policy"))
-    assert f"rmse {m['metrics']['rmse']:.3f} m vs PD {m['metrics']['pd_rmse']:.3f} m" in kept
+    assert f"rmse {m['metrics']['rmse']:.3f} m vs the base law alone {m['metrics']['pd_rmse']:.3f} m" in kept
 
 
 def test_quick_vertical_curriculum_recipe(tmp_path):

@@ -121,10 +121,14 @@ def fly_controllers(
         if name in CLASSICAL_CONTROLLERS:  # the base law alone, on the estimate the policy sees (or none)
             law, base_wind = classical_controller(regime, name)
             settings["base_wind_input"] = base_wind
+            # no policy reads this env's observation: the policy's own inputs (its base law's state, its
+            # memory, its normalisation) may not exist on this law, and would change nothing flown
+            for key in ("base_state_inputs", "memory_frames", "recurrent_hidden"):
+                settings.pop(key)
             flown = replace(config, controller=replace(config.controller, **law))
             env = make_env(regime, estimator if base_wind == "estimate" else None, n,
                            wind_input="estimate" if base_wind == "estimate" else "truth", device=device, config=flown,
-                           vecnorm_state=inputs["vecnorm"], compile_step=compile_step, **settings)
+                           compile_step=compile_step, **settings)
             return env, None
         wind_input = WIND_INPUT[name]
         if config.controller.needs_wind and settings["base_wind_input"] == "estimate" and wind_input == "truth":

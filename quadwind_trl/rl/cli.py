@@ -263,8 +263,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
           f"({result.wall_time_s:.0f} s in total) -> {out / 'policy.pt'}")
     if m:
         print(f"kept policy (evaluated at {m['frames']:,} frames, {manifest['selection']['evaluations']} evaluations): "
-              f"rmse {m['rmse']:.3f} m vs PD {m['pd_rmse']:.3f} m "
+              f"rmse {m['rmse']:.3f} m vs the base law alone {m['pd_rmse']:.3f} m "
               f"(RMSE reduction {m['improvement_vs_pd']:+.1f} %; xy {m['improvement_rmse_xy_pct']:+.1f} %, "
-              f"z {m['improvement_rmse_z_pct']:+.1f} %; positive = better than PD), "
+              f"z {m['improvement_rmse_z_pct']:+.1f} %; positive = better than the base law), "
               f"win rate {m['win_rate']:.2f}, crashed {m['crashed']}")
     return manifest

@@ -431,7 +431,7 @@ class PPOTrainer:
             save_atomic(from_bytes(policy), self.best_path)
             p.best = {"frames": frames, "iteration": iteration, "validation_score": metrics["validation_score"]}
         if self.progress:
-            print(f"[eval @ {frames} frames] rmse {metrics['rmse']:.3f} m vs PD {metrics['pd_rmse']:.3f} m "
+            print(f"[eval @ {frames} frames] rmse {metrics['rmse']:.3f} m vs the base law alone {metrics['pd_rmse']:.3f} m "
                   f"(RMSE reduction {metrics['improvement_vs_pd']:+.1f} %, positive = better), win rate {metrics['win_rate']:.2f}, "
                   f"crashed {metrics['crashed']}, validation score {metrics['validation_score']:.3f} m"
                   f"{' (best so far)' if p.best['frames'] == frames else ''}, {metrics['eval_s']:.0f} s", flush=True)
