@@ -85,6 +85,8 @@ def test_the_section_renders_what_the_file_holds(flown, tmp_path):
     assert "`python recipes/headroom.py` at `abc123`" in text
     assert f"{result['cells']['navigation']['full']['rmse_xy']:.3f}" in text
     assert f"{result['split']['z']['headroom_pct']:.0f} %" in text
+    # the parts in the order the split takes them, not the file's sorted keys
+    assert text.index("| still air, true state") < text.index("| mean wind |") < text.index("| navigation (sensing) |")
     assert render_section(tmp_path / "nothing_here") == ""
 
 

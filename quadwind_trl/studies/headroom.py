@@ -122,6 +122,9 @@ def summary_lines(result: dict) -> list[str]:
     return lines
 
 
+# the parts in the order each split takes them (a results file holds its keys sorted)
+ORDERS = {"wind_on_true_state": ("still_air_true_state", "wind", "mean_wind", "turbulence", "sensing"),
+          "sensing_in_still_air": ("still_air_true_state", "sensing", "wind", "mean_wind", "turbulence")}
 PART_LABEL = {"still_air_true_state": "still air, true state (the cascade's lag)", "mean_wind": "mean wind",
               "turbulence": "turbulence", "wind": "wind", "sensing": "navigation (sensing)"}
 SENSING_LABEL = {"navigation": "as shipped (nav filter)", "true_state": "on the true state"}
@@ -146,8 +149,8 @@ def _section_for(key: str, r: dict) -> list[str]:
                          ("sensing_in_still_air", "the sensing in still air, the wind last")):
         lines += [f"Split, {title} (m, and % of the as-shipped full-wind RMSE):", "",
                   "| part | xy (m) | xy share | z (m) | z share |", "|---|---|---|---|---|"]
-        for name, p in xy[order].items():
-            q = z[order][name]
+        for name in (n for n in ORDERS[order] if n in xy[order]):
+            p, q = xy[order][name], z[order][name]
             lines.append(f"| {PART_LABEL.get(name, name)} | {p['rmse']:.3f} | {p['share_pct']:.0f} % | "
                          f"{q['rmse']:.3f} | {q['share_pct']:.0f} % |")
         lines.append(f"| **total** (as shipped, full wind) | {xy['total']:.3f} | 100 % | {z['total']:.3f} | 100 % |")
