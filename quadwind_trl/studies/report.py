@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import base_search, classical, error_budget, paired_ablation, pd_baseline, perception, pipeline_times, residual
+from . import base_search, classical, error_budget, headroom, paired_ablation, pd_baseline, perception, pipeline_times, residual
 from . import seeds, summary, toy as toy_page, training
 from .section import SECTION_FILES, ReportContext, Section
 
@@ -21,6 +21,7 @@ PAGE: tuple[Section, ...] = (
     seeds.SECTION,
     base_search.SECTION,
     classical.SECTION,
+    headroom.SECTION,
     perception.SECTION,
     residual.SECTION,
     pipeline_times.SECTION,
