@@ -23,9 +23,11 @@ every 262,144 frames, flown in a second process beside training as the recipe do
 
 "Collection, the rest" is the collector's time the three collection parts leave: the transforms
 (episode control, the estimator's feature ring and EMA, the observation, the normalisation), the
-TorchRL collector's bookkeeping. Each background evaluation's own duration (``eval_s``, measured
-in the evaluation process: PD's flight and the env's compilation in the first) is printed too.
-One table, then one parseable ``profile`` line per phase. The run directory is a scratch folder.
+TorchRL collector's bookkeeping. Each evaluation's own duration (``eval_s``, measured where it
+flies; it includes the eval env's compilation and PD's flights where they are paid inside the
+first evaluation, not where the evaluation process pays them as it starts) is printed too. One
+table, each batch's collection and update seconds, then one parseable ``profile`` line per phase.
+The run directory is a scratch folder.
 """
 from __future__ import annotations
 
@@ -160,6 +162,8 @@ def report(run: dict) -> None:
     print(f"| phase | s | share of wall |\n|---|---|---|")
     for name, s in rows:
         print(f"| {name} | {s:.1f} | {100 * s / wall:.1f} % |")
+    # per batch: whether a phase slowed down over the run (another process's share of the cores) or not
+    print("per batch (collection / update, s): " + ", ".join(f"{h['collect_s']:.1f}/{h['update_s']:.1f}" for h in history))
     for e in run["evals"]:
         print(f"evaluation at {e['frames']:,} frames: {e['eval_s']:.1f} s of flying (its own process or this one), "
               f"xy vs PD {e['improvement_rmse_xy_pct']:+.2f} %, validation score {e['validation_score']:.4f} m")
