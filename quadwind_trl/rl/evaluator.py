@@ -35,25 +35,22 @@ from .paired import Policy, fly_paired, paired_metrics
 _CLOSE_TIMEOUT_S = 120.0
 
 
-def fly_pd(env: EnvBase, scenarios: TensorDictBase) -> dict:
-    """PD's per-episode results on ``scenarios`` in ``env`` (what :func:`evaluate_against_pd` takes
-    as ``pd_eval``): they do not depend on the policy or the normalisation, so they are flown once."""
-    pd = fly_paired({"pd": (env, None)}, scenarios)["pd"]
-    return {"index": pd.index, "rmse_xy": pd.rmse_xy, "rmse_z": pd.rmse_z, "crashed": pd.crashed}
-
-
 def evaluate_against_pd(env: EnvBase, actor: Policy, vecnorm_state: dict, scenarios: TensorDictBase,
                         pd_eval: dict | None) -> tuple[dict[str, float], dict]:
     """``(metrics, pd_eval)``: :func:`~quadwind_trl.rl.paired.paired_metrics` of ``actor`` against
     PD on ``scenarios`` in ``env`` under the normalisation ``vecnorm_state`` (frozen), and PD's
-    per-episode results (``pd_eval``, flown here by :func:`fly_pd` when None), plus ``eval_s``, the
-    seconds it took."""
+    per-episode results (``pd_eval``, flown here when None), plus ``eval_s``, the seconds it took."""
     load_vecnorm_state(env, vecnorm_state)
     t0 = time.perf_counter()
+    flights = {"policy": (env, actor)}
     if pd_eval is None:
-        pd_eval = fly_pd(env, scenarios)
+        flights = {"pd": (env, None), **flights}
+    flown = fly_paired(flights, scenarios)
+    if pd_eval is None:
+        pd = flown["pd"]
+        pd_eval = {"index": pd.index, "rmse_xy": pd.rmse_xy, "rmse_z": pd.rmse_z, "crashed": pd.crashed}
     pd = FlightResults(**pd_eval, log=TensorDict({}, batch_size=[pd_eval["index"].numel(), 0]))
-    metrics = paired_metrics(fly_paired({"policy": (env, actor)}, scenarios)["policy"], pd)
+    metrics = paired_metrics(flown["policy"], pd)
     metrics["eval_s"] = time.perf_counter() - t0
     return metrics, pd_eval
 
@@ -77,11 +74,9 @@ class EvaluationResult:
     pd_eval: dict
 
 
-def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int, pd_eval: dict | None,
-           jobs: mp.Queue, results: mp.Queue) -> None:
-    """The child: build the eval env and an actor once, fly PD unless ``pd_eval`` is known (while
-    training collects the first snapshot's frames: the env's compilation and PD's flights are then
-    paid before the first evaluation is due), then evaluate each job until ``None``."""
+def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int, jobs: mp.Queue, results: mp.Queue
+           ) -> None:
+    """The child: build the eval env and an actor once, then evaluate each job until ``None``."""
     from .policy import build_actor_critic
 
     try:
@@ -89,8 +84,7 @@ def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed:
             torch.set_num_threads(cfg.threads)
         env = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
         actor = build_actor_critic(cfg)[0].to(factory.spec.device)
-        if pd_eval is None:
-            pd_eval = fly_pd(env, scenarios)
+        pd_eval = None
         while (job := jobs.get()) is not None:
             job = from_bytes(job)
             policy_file = from_bytes(job["policy_file"])
@@ -106,14 +100,12 @@ class BackgroundEvaluator:
     """:func:`evaluate_against_pd` in a child process, one snapshot after another, in the order
     submitted. ``factory``, ``scenarios`` and ``seed`` build the eval env the training process
     would (``factory(num_envs=len(scenarios), seed=seed, desync_steps=0)``); ``cfg`` gives the
-    actor's architecture and the thread count; ``pd_eval``: PD's results when known (a resumed
-    run's), else the child flies PD as soon as it starts."""
+    actor's architecture and the thread count."""
 
-    def __init__(self, factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int,
-                 pd_eval: dict | None = None):
+    def __init__(self, factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int):
         ctx = mp.get_context("spawn")  # a fresh interpreter: no state of the trainer's is inherited
         self._jobs, self._results = ctx.Queue(), ctx.Queue()
-        self._process = ctx.Process(target=_serve, args=(factory, scenarios, cfg, seed, pd_eval, self._jobs, self._results),
+        self._process = ctx.Process(target=_serve, args=(factory, scenarios, cfg, seed, self._jobs, self._results),
                                     name="background-eval", daemon=True)
         self._process.start()
         self.pending = 0

@@ -309,7 +309,7 @@ class PPOTrainer:
             self._apply_stage(env, progress.stage, truncate=False)
         eval_env = evaluator = None
         if self.eval_scenarios is not None and cfg.background_eval:
-            evaluator = BackgroundEvaluator(self.factory, self.eval_scenarios, cfg, seed=spec.seed + 1, pd_eval=progress.pd_eval)
+            evaluator = BackgroundEvaluator(self.factory, self.eval_scenarios, cfg, seed=spec.seed + 1)
         elif self.eval_scenarios is not None:
             eval_env = self.factory(num_envs=self.eval_scenarios.batch_size[0], seed=spec.seed + 1, desync_steps=0)
         result = PPOResult(self.out_dir, progress.frames, progress.iteration, evals=list(progress.evals))
