@@ -24,8 +24,7 @@ every 262,144 frames, flown in a second process beside training as the recipe do
 "Collection, the rest" is the collector's time the three collection parts leave: the transforms
 (episode control, the estimator's feature ring and EMA, the observation, the normalisation), the
 TorchRL collector's bookkeeping. Each evaluation's own duration (``eval_s``, measured where it
-flies; it includes the eval env's compilation and PD's flights where they are paid inside the
-first evaluation, not where the evaluation process pays them as it starts) is printed too. One
+flies; the first includes the eval env's compilation and PD's flights) is printed too. One
 table, each batch's collection and update seconds, then one parseable ``profile`` line per phase.
 The run directory is a scratch folder.
 """
