@@ -341,6 +341,24 @@ def test_hash_rows_are_pure_functions_of_key_and_counter():
     assert (hash_bits(keys, counters, 10, 6) != full).float().mean() > 0.99
 
 
+
+def test_a_traced_draw_warns_nothing_and_draws_the_eager_bits():
+    """Traced (``torch.compile``), the hash's numbers are made in the graph rather than read from
+    their eager cache, which dynamo would trace through with a warning per cached function; the
+    draws are the eager ones."""
+    import warnings
+
+    from torch._dynamo.utils import warn_once_cache
+
+    keys, counters = torch.tensor([0, 1, 2**40 + 5]), torch.tensor([0, 10**9, 7])
+    traced = torch.compile(lambda k, c: (hash_bits(k, c, 9, 6), hash_normal(k, c, 9, 3)), backend="eager", fullgraph=True)
+    warn_once_cache.difference_update({m for m in warn_once_cache if "lru_cache" in m})  # dynamo warns once a process
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        bits, normals = traced(keys, counters)
+    assert not [w for w in caught if "lru_cache" in str(w.message)]
+    assert torch.equal(bits, hash_bits(keys, counters, 9, 6)) and torch.equal(normals, hash_normal(keys, counters, 9, 3))
+
 @pytest.mark.parametrize("reference", ["baro", "gnss"])
 def test_height_reference_decides_whether_the_baro_offset_reaches_the_altitude(reference):
     """A vehicle at rest at 100 m, noise-free sensors, the barometer reading 0.15 m high and the

@@ -20,6 +20,8 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from .operands import tracing
+
 _MASK32 = 0xFFFFFFFF
 _TWO_PI = 2.0 * math.pi
 
@@ -43,18 +45,30 @@ class _Numbers(NamedTuple):
     two_pi: Tensor  # float32
 
 
-@functools.cache
-def _numbers(device: torch.device) -> _Numbers:
+def _make_numbers(device: torch.device) -> _Numbers:
     i = lambda v: torch.tensor(v, dtype=torch.int64, device=device)  # noqa: E731
     f = lambda v: torch.tensor(v, dtype=torch.float32, device=device)  # noqa: E731
     return _Numbers(i(_MASK32), i(8), i(15), i(16), i(32), i(0x7FEB352D), i(0x2C1B3C6D), i(0x27D4EB2F),
                     f(0.5), f(1.0 / 16777216.0), f(-2.0), f(_TWO_PI))
 
 
-@functools.cache
-def _column_terms(num: int, device: torch.device) -> Tensor:
+def _make_column_terms(num: int, device: torch.device) -> Tensor:
     """``column * 0x632BE5AB`` for the columns ``0 .. num - 1``."""
     return torch.arange(num, device=device, dtype=torch.int64) * 0x632BE5AB
+
+
+_cached_numbers = functools.cache(_make_numbers)
+_cached_column_terms = functools.cache(_make_column_terms)
+
+
+# Eagerly the tensors are made once per device; traced, dynamo traces the maker itself (it would
+# trace through a cache anyway, and say so in a warning at every compilation): the same graph
+def _numbers(device: torch.device) -> _Numbers:
+    return _make_numbers(device) if tracing() else _cached_numbers(device)
+
+
+def _column_terms(num: int, device: torch.device) -> Tensor:
+    return _make_column_terms(num, device) if tracing() else _cached_column_terms(num, device)
 
 
 def _mix32(x: Tensor, c: _Numbers) -> Tensor:

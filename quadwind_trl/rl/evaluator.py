@@ -150,5 +150,8 @@ class BackgroundEvaluator:
             if self._process.is_alive():
                 self._process.terminate()
                 self._process.join()
+        # jobs a stopped child never read would keep the queue's feeder thread blocked on a full
+        # pipe, and this process from exiting: the child is gone, so they are dropped
+        self._jobs.cancel_join_thread()
         self._jobs.close()
         self._results.close()
