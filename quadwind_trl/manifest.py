@@ -96,6 +96,13 @@ def same_vector_isa(a: dict | None, b: dict | None) -> bool:
     return isa(a) is not None and isa(a) == isa(b)
 
 
+def same_processor(a: dict | None, b: dict | None) -> bool:
+    """Whether two :func:`platform_info` records come from the same processor model (its name and
+    its vector instruction set, :func:`same_vector_isa`), whatever the torch build, kernel path
+    or environment."""
+    return same_vector_isa(a, b) and a.get("cpu") == b.get("cpu")
+
+
 def same_platform(a: dict | None, b: dict | None) -> bool:
     """Whether two :func:`platform_info` records name the same platform (so bitwise replay is the
     promise between them); a record without one (made before platforms were recorded) never is."""

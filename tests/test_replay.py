@@ -79,10 +79,11 @@ def test_another_kernel_path_stays_within_the_cross_platform_tolerance(tmp_path,
     assert holds, f"{verdict} (tolerance {rtol:.0e}; docs/simulator.md, 'Exact replay')"
 
 
-def test_the_tolerance_holds_between_processors_of_one_vector_instruction_set():
-    """CROSS_PLATFORM_RTOL is a claim about processors with the same vector instruction set; a
-    record from another (an AVX-512 record on an AVX2-only processor moved by 1.1e-3) is checked
-    for equivalence, and an ATen kernel path lowered by ATEN_CPU_CAPABILITY stays the processor's."""
+def test_the_tolerance_holds_on_one_processor_model_only():
+    """CROSS_PLATFORM_RTOL is a claim about one processor model (its name and vector instruction
+    set); a record from another (an AVX-512 record on an AVX2-only processor moved by 1.1e-3, on an
+    Intel AVX-512 processor by 1.8e-3) is checked for equivalence, and an ATen kernel path lowered
+    by ATEN_CPU_CAPABILITY stays the processor's."""
     from quadwind_trl.evaluation.replay import Agreement
 
     here = platform_info()
@@ -97,7 +98,12 @@ def test_the_tolerance_holds_between_processors_of_one_vector_instruction_set():
     if same_vector_isa(same_isa, here):  # known here (ATen not lowered by the environment): the tolerance applies
         assert not replay_verdict(moved, same_isa, rtol)[0]
     holds, verdict = replay_verdict(moved, other_isa, rtol)
-    assert holds and "another vector instruction set, equivalence within 1% of the recorded mean: equivalent" in verdict
+    assert holds and "on another processor, equivalence within 1% of the recorded mean: equivalent" in verdict
+    # the same instruction set on another processor model (an Intel Xeon against an AMD EPYC record,
+    # both AVX-512, moved values by up to 1.8e-3): no tolerance either
+    other_model = {**same_isa, "cpu": f"not {here['cpu']}"}
+    holds, verdict = replay_verdict(moved, other_model, rtol)
+    assert holds and "on another processor, equivalence" in verdict
     if here["vector_isa"] is not None:  # /proc/cpuinfo readable: the lowered path counts as this processor only when recorded
         assert replay_verdict(moved, {**lowered, "vector_isa": here["vector_isa"]}, rtol)[0] is False
     assert "equivalence" in replay_verdict(moved, lowered, rtol)[1]  # unknown instruction set: never the tolerance
