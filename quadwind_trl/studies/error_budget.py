@@ -29,7 +29,7 @@ from ..envs.runner import FlightResults
 from ..estimator import EstimatorBundle
 from ..evaluation.ablation import fly_controllers
 from ..evaluation.statistics import paired_summary
-from .section import ReportContext, Section
+from .section import Section
 from .tables import ci, headroom_pct
 
 Wind = Literal["full", "mean_only", "still"]
@@ -147,10 +147,5 @@ def error_budget_section(budgets: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def _render(ctx: ReportContext) -> str | None:
-    budgets = ctx.jsons("error_budget_*.json")
-    return error_budget_section(budgets) if budgets else None
-
-
-SECTION = Section("error_budget", "Error budget: what part of PD's error a controller can remove",
-                  ("results/error_budget_*.json",), _render)
+SECTION = Section.of_results("error_budget", "Error budget: what part of PD's error a controller can remove",
+                             "error_budget_*.json", error_budget_section)

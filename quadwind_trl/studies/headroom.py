@@ -35,7 +35,7 @@ from tensordict import TensorDictBase
 from ..config import EnvConfig
 from ..estimator import EstimatorBundle
 from .error_budget import WINDS, Wind, error_budget
-from .section import ReportContext, Section
+from .section import Section
 from .tables import headroom_pct
 from ..regimes import CLASSICAL_CONTROLLERS, CLASSICAL_LABEL, classical_controller
 
@@ -178,9 +178,5 @@ def headroom_section(results: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def _render(ctx: ReportContext) -> str | None:
-    results = ctx.jsons("headroom_*.json")
-    return headroom_section(results) if results else None
-
-
-SECTION = Section("headroom", "Headroom over the best classical controller", ("results/headroom_*.json",), _render)
+SECTION = Section.of_results("headroom", "Headroom over the best classical controller", "headroom_*.json",
+                             headroom_section)

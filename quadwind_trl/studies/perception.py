@@ -40,7 +40,7 @@ from ..evaluation.statistics import across_seeds, decompose, paired_summary, t_i
 from ..manifest import repo_relative
 from ..regimes import CLASSICAL_LABEL
 from . import paper
-from .section import ReportContext, Section
+from .section import Section
 from .tables import SWEEP_TITLES, in_sweep_order, paired_cell, present, seed_cells, wind_rows
 
 LEVEL = 0.95  # the seed-level t-intervals (evaluation.statistics.t_interval's default)
@@ -492,9 +492,4 @@ def perception_section(result: dict) -> str:
     return "\n".join(lines)
 
 
-def _render(ctx: ReportContext) -> str | None:
-    result = ctx.json("perception_value.json")
-    return None if result is None else perception_section(result)
-
-
-SECTION = Section("perception", "What the estimate is worth", ("results/perception_value.json",), _render)
+SECTION = Section.of_results("perception", "What the estimate is worth", "perception_value.json", perception_section)

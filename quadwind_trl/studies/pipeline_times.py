@@ -2,7 +2,7 @@
 (``results/pipeline_times.json``, recorded by the pipeline as each stage finished)."""
 from __future__ import annotations
 
-from .section import ReportContext, Section
+from .section import Section
 from .tables import wall_time
 
 
@@ -21,9 +21,5 @@ def pipeline_section(times: dict[str, dict]) -> str:
     return "\n".join(lines)
 
 
-def _render(ctx: ReportContext) -> str | None:
-    times = ctx.json("pipeline_times.json")
-    return None if times is None else pipeline_section(times)
-
-
-SECTION = Section("pipeline_times", "Pipeline wall time on this machine", ("results/pipeline_times.json",), _render)
+SECTION = Section.of_results("pipeline_times", "Pipeline wall time on this machine", "pipeline_times.json",
+                             pipeline_section)

@@ -8,11 +8,9 @@ page (:mod:`quadwind_trl.studies.report`) only orders and joins the registered s
 a study is its module and one entry in :data:`quadwind_trl.studies.report.PAGE`; the cells that
 more than one section prints are in :mod:`quadwind_trl.studies.tables`::
 
-    def _render(ctx: ReportContext) -> str | None:
-        result = ctx.json("my_study.json")
-        return None if result is None else my_study_section(result)
+    SECTION = Section.of_results("my_study", "What my study measures", "my_study.json", my_study_section)
 
-    SECTION = Section("my_study", "What my study measures", ("results/my_study.json",), _render)
+A section that reads more than its own result files gives ``Section`` a ``render(ctx)`` of its own.
 """
 from __future__ import annotations
 
@@ -20,7 +18,7 @@ import json
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Any, Callable, Mapping
 
 from ..regimes import SWEEPS, VALIDATION_SWEEPS
 
@@ -100,6 +98,22 @@ class Section:
     title: str
     reads: tuple[str, ...]
     render: Callable[[ReportContext], str | None]
+
+    @classmethod
+    def of_results(cls, name: str, title: str, pattern: str, section: Callable[[Any], str]) -> "Section":
+        """The section of a study whose text is one function of its result files: ``section`` of
+        ``RESULTS/pattern`` parsed, or, where ``pattern`` is a glob, of every matching file parsed
+        (by file stem, :meth:`ReportContext.jsons`); left out when there is none."""
+        is_glob = any(c in pattern for c in "*?[")
+
+        def render(ctx: ReportContext) -> str | None:
+            if is_glob:
+                results = ctx.jsons(pattern)
+                return section(results) if results else None
+            result = ctx.json(pattern)
+            return None if result is None else section(result)
+
+        return cls(name, title, (f"results/{pattern}",), render)
 
 
 def _section_files(ctx: ReportContext) -> str | None:
