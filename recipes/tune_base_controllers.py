@@ -36,7 +36,7 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.config import ControllerConfig, config_to_dict
+from quadwind_trl.config import ControllerConfig, config_to_dict, stiffer_inner_loop
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.evaluation.ablation import policy_compile_step, policy_env_config
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, write_json
@@ -46,7 +46,7 @@ from quadwind_trl.regimes import CLASSICAL_CHOICES, VALIDATION_SWEEPS
 from quadwind_trl.rl.envs import policy_env_settings
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.policy import load_policy
-from quadwind_trl.studies.base_search import fly_candidates, select_candidate, stiffer_inner_loop
+from quadwind_trl.studies.base_search import fly_candidates, select_candidate
 
 KI_GRID = (0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)  # 1/s^3, every axis
 # s; down to two control steps: the horizontal search's best was its smallest value at 0.05 s

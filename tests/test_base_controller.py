@@ -12,13 +12,13 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from quadwind_trl.config import ControllerConfig, EnvConfig, TrajectoryConfig, VehicleConfig
+from quadwind_trl.config import ControllerConfig, EnvConfig, TrajectoryConfig, VehicleConfig, stiffer_inner_loop
 from quadwind_trl.envs import QuadWindEnv, make_scenarios
 from quadwind_trl.envs.controller import (ClassicalParams, ControlInputs, ControllerParams, make_base_controller,
                                           pd_control)
 from quadwind_trl.envs.simulator import QuadSimulator
 from quadwind_trl.envs.trajectories.library import Reference
-from quadwind_trl.studies.base_search import fly_candidates, per_row_controller, stiffer_inner_loop
+from quadwind_trl.studies.base_search import fly_candidates, per_row_controller
 from quadwind_trl.keys import BASE_WIND_KEY
 from quadwind_trl.rl.envs import make_env
 from quadwind_trl.transforms import BaseWindInput

@@ -37,14 +37,6 @@ from .training import on_paper_pd
 
 
 
-def stiffer_inner_loop(cfg: ControllerConfig, scale: float) -> ControllerConfig:
-    """``cfg`` with its attitude gain ``K_R`` times ``scale`` and its rate gain ``K_omega`` times
-    ``sqrt(scale)``: the same damping ratio, an attitude loop ``sqrt(scale)`` times faster."""
-    if scale <= 0:
-        raise ValueError(f"stiffer_inner_loop: scale={scale}; allowed: > 0")
-    return replace(cfg, k_att=tuple(k * scale for k in cfg.k_att), k_rate=tuple(k * scale ** 0.5 for k in cfg.k_rate))
-
-
 def per_row_controller(candidates: Sequence[ControllerConfig], row_candidate: torch.Tensor, config: EnvConfig,
                        device: torch.device | str = "cpu") -> CascadeController:
     """One :class:`CascadeController` whose env row ``i`` flies ``candidates[row_candidate[i]]``:
