@@ -142,6 +142,14 @@ class ControllerConfig:
         _check_range("ControllerConfig", "l1_pole_1_s", self.l1_pole_1_s, 0.1, 100.0)
 
 
+def stiffer_inner_loop(cfg: ControllerConfig, scale: float) -> ControllerConfig:
+    """``cfg`` with its attitude gain ``K_R`` times ``scale`` and its rate gain ``K_omega`` times
+    ``sqrt(scale)``: the same damping ratio, an attitude loop ``sqrt(scale)`` times faster."""
+    if scale <= 0:
+        raise ValueError(f"stiffer_inner_loop: scale={scale}; allowed: > 0")
+    return replace(cfg, k_att=tuple(k * scale for k in cfg.k_att), k_rate=tuple(k * scale ** 0.5 for k in cfg.k_rate))
+
+
 @dataclass(frozen=True)
 class NavigationConfig:
     """Complementary-filter gains (fraction of the innovation applied per new sample); ours.

@@ -23,7 +23,7 @@ from dataclasses import dataclass, replace
 import torch
 from tensordict import TensorDict
 
-from .config import EnvConfig
+from .config import ControllerConfig, EnvConfig, stiffer_inner_loop
 from .envs.counter_rng import hash_bits
 from .envs.scenarios import RegimeRanges, cross_with_trajectories, latin_hypercube, regimes_from_unit
 from .envs.trajectories import HORIZONTAL, VERTICAL
@@ -159,16 +159,19 @@ SWEEP_REGIME = {"horizontal": "horizontal", "vertical": "vertical", "ood": "hori
 # twin) or on the true mean wind (its oracle). Each regime's constants are the ones its validation search chose
 # (recipes/tune_base_controllers.py, results/base_search_<regime>.json; docs/simulator.md,
 # "Classical base controllers"): the integral gain Ki (1/s^3, every axis) of pid and pid_ff, and the
-# filter time constants (s) of the observer's and of L1 adaptive control's force. The
-# out-of-distribution sweep flies the horizontal ones.
+# filter time constants (s) of the observer's and of L1 adaptive control's force; and, under the
+# chosen observer, the inner loop's stiffness s (config.stiffer_inner_loop: K_R x s, K_omega x
+# sqrt(s); results/experiments/inner_loop/base_search_<regime>.json). The out-of-distribution
+# sweep flies the horizontal ones.
 CLASSICAL_CHOICES = {
-    "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.02},
-    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.2},
+    "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.02, "dob_inner_scale": 2.0},
+    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.2, "dob_inner_scale": 3.0},
 }
-CLASSICAL_CONTROLLERS = ("pid", "dob", "l1", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff", "pid_ff_blind",
-                         "pid_ff_oracle")
+CLASSICAL_CONTROLLERS = ("pid", "dob", "dob_inner", "l1", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff",
+                         "pid_ff_blind", "pid_ff_oracle")
 # how tables and figures name them
-CLASSICAL_LABEL = {"pid": "PD + integral", "dob": "PD + disturbance observer", "l1": "PD + L1 adaptive",
+CLASSICAL_LABEL = {"pid": "PD + integral", "dob": "PD + disturbance observer",
+                   "dob_inner": "PD + disturbance observer, stiffer inner loop", "l1": "PD + L1 adaptive",
                    "pd_ff": "PD + wind feed-forward",
                    "pd_ff_blind": "PD + feed-forward, estimate at zero", "pd_ff_oracle": "PD + feed-forward, true wind",
                    "pid_ff": "PID + wind feed-forward", "pid_ff_blind": "PID + feed-forward, estimate at zero",
@@ -183,13 +186,18 @@ def classical_controller(regime: str, name: str) -> tuple[dict, str]:
         raise ValueError(f"classical controller {name!r}; allowed: {CLASSICAL_CONTROLLERS}")
     chosen = CLASSICAL_CHOICES[regime]
     law, _, twin = name.partition("_ff")
-    # every classical addition set, so that a config that already has some (a policy trained on
-    # another base) flies exactly this law
-    changes = {"ki_pos": (0.0, 0.0, 0.0), "disturbance": "none"}
+    # every classical addition set, and the paper's inner loop, so that a config that already has
+    # some (a policy trained on another base) flies exactly this law
+    paper = ControllerConfig()
+    changes = {"ki_pos": (0.0, 0.0, 0.0), "disturbance": "none", "k_att": paper.k_att, "k_rate": paper.k_rate}
     if name == "pid":
         return changes | {"ki_pos": (chosen["pid_ki"],) * 3}, "zero"
-    if name == "dob":
-        return changes | {"disturbance": "observer", "observer_tau_s": chosen["dob_tau_s"]}, "zero"
+    if name in ("dob", "dob_inner"):
+        changes |= {"disturbance": "observer", "observer_tau_s": chosen["dob_tau_s"]}
+        if name == "dob_inner":
+            stiff = stiffer_inner_loop(paper, chosen["dob_inner_scale"])
+            changes |= {"k_att": stiff.k_att, "k_rate": stiff.k_rate}
+        return changes, "zero"
     if name == "l1":
         return changes | {"disturbance": "l1", "observer_tau_s": chosen["l1_tau_s"]}, "zero"
     changes["disturbance"] = "wind_model"

@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.estimator import load_estimator
-from quadwind_trl.evaluation.error_budget import WINDS
+from quadwind_trl.studies.error_budget import WINDS
 from quadwind_trl.evaluation.tracking import sweep_setup
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command

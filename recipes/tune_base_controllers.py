@@ -13,7 +13,9 @@ Families (``ControllerConfig``): ``pid`` the integral gain ``Ki`` (all three axe
 clamped at 3 m s), ``dob`` the disturbance observer's filter time constant, ``l1`` the filter time
 constant of L1 adaptive control's force (its predictor pole at the config's default), ``pid_ff``
 the integral gain on top of wind feed-forward from the shipped estimator (``Ki = 0`` is PD with
-feed-forward alone). The candidates of a family fly in one batch (``studies.base_search``). Every family
+feed-forward alone), ``dob_inner`` the inner loop's stiffness under the chosen observer (``K_R x s``,
+``K_omega x sqrt(s)``: the attitude loop's damping kept, its speed times ``sqrt(s)``; the classical
+answer to a still-air tracking lag, so that it is not credited to learning). The candidates of a family fly in one batch (``studies.base_search``). Every family
 flies in the env the shipped policy of the regime trained in (its config, its estimate's EMA and
 query interval), so the chosen controllers see the worlds the RL sees. Writes
 ``results/base_search_<regime>.json`` (``--quick``: under ``runs/quick/results``): every
@@ -34,13 +36,13 @@ from pathlib import Path
 
 import torch
 
-from quadwind_trl.config import ControllerConfig, config_to_dict
+from quadwind_trl.config import ControllerConfig, config_to_dict, stiffer_inner_loop
 from quadwind_trl.estimator import load_estimator
 from quadwind_trl.evaluation.ablation import policy_compile_step, policy_env_config
 from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.quick import SWEEP_QUICK
-from quadwind_trl.regimes import VALIDATION_SWEEPS
+from quadwind_trl.regimes import CLASSICAL_CHOICES, VALIDATION_SWEEPS
 from quadwind_trl.rl.envs import policy_env_settings
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.policy import load_policy
@@ -49,18 +51,25 @@ from quadwind_trl.studies.base_search import fly_candidates, select_candidate
 KI_GRID = (0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)  # 1/s^3, every axis
 # s; down to two control steps: the horizontal search's best was its smallest value at 0.05 s
 TAU_GRID = (0.02, 0.03, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6)
-QUICK_KI, QUICK_TAU = (0.0, 2.0), (0.2, 0.8)
+# the inner loop's stiffness: K_R x s and K_omega x sqrt(s) keep the attitude loop's damping ratio
+# (about 2 at the paper's gains: overdamped, its slow pole near 3 rad/s) and raise its speed by
+# sqrt(s); s = 8 puts the slow pole near 9 rad/s, half the motors' 20 rad/s (one motor time constant)
+INNER_SCALE_GRID = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
+QUICK_KI, QUICK_TAU, QUICK_INNER = (0.0, 2.0), (0.2, 0.8), (1.0, 3.0)
 
 
-def families(quick: bool) -> dict[str, tuple[str, str, list[ControllerConfig]]]:
-    """``{family: (searched field, base wind input, candidates)}``."""
-    ki, tau = (QUICK_KI, QUICK_TAU) if quick else (KI_GRID, TAU_GRID)
+def families(quick: bool, regime: str = "horizontal") -> dict[str, tuple[str, str, list[ControllerConfig]]]:
+    """``{family: (searched field, base wind input, candidates)}``; ``dob_inner`` searches the inner
+    loop under the regime's chosen observer (``regimes.CLASSICAL_CHOICES``)."""
+    ki, tau, inner = (QUICK_KI, QUICK_TAU, QUICK_INNER) if quick else (KI_GRID, TAU_GRID, INNER_SCALE_GRID)
+    dob = ControllerConfig(disturbance="observer", observer_tau_s=CLASSICAL_CHOICES[regime]["dob_tau_s"])
     axes = lambda k: (k, k, k)  # noqa: E731
     return {
         "pid": ("ki_pos", "zero", [ControllerConfig(ki_pos=axes(k)) for k in ki]),
         "dob": ("observer_tau_s", "zero", [ControllerConfig(disturbance="observer", observer_tau_s=t) for t in tau]),
         "l1": ("observer_tau_s", "zero", [ControllerConfig(disturbance="l1", observer_tau_s=t) for t in tau]),
         "pid_ff": ("ki_pos", "estimate", [ControllerConfig(ki_pos=axes(k), disturbance="wind_model") for k in ki]),
+        "dob_inner": ("k_att", "zero", [stiffer_inner_loop(dob, s) for s in inner]),
     }
 
 
@@ -127,7 +136,7 @@ def main() -> None:
                   "estimate": settings, "config": config_to_dict(config), "families": kept_families(out, args.families)}
         pd = None
         for name in args.families:
-            field, wind, candidates = families(args.quick)[name]
+            field, wind, candidates = families(args.quick, regime)[name]
             candidates = [replace(c, feedback=config.controller.feedback) for c in candidates]
             start = time.perf_counter()
             flown = fly_candidates(regime, candidates, scenarios, estimator, base_wind_input=wind, config=config,

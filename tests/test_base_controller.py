@@ -12,7 +12,7 @@ import pytest
 import torch
 from torchrl.envs.utils import check_env_specs
 
-from quadwind_trl.config import ControllerConfig, EnvConfig, TrajectoryConfig, VehicleConfig
+from quadwind_trl.config import ControllerConfig, EnvConfig, TrajectoryConfig, VehicleConfig, stiffer_inner_loop
 from quadwind_trl.envs import QuadWindEnv, make_scenarios
 from quadwind_trl.envs.controller import (ClassicalParams, ControlInputs, ControllerParams, make_base_controller,
                                           pd_control)
@@ -229,16 +229,20 @@ def test_base_wind_input_gives_the_step_its_wind(source):
         raw.step(raw.full_action_spec.zero().update({"action": torch.zeros(2, 4)}))
 
 
-def test_search_rows_fly_their_own_candidate():
+@pytest.mark.parametrize("family", ["observer_tau", "inner_loop"])
+def test_search_rows_fly_their_own_candidate(family):
     """The validation search flies each candidate's copy of the episodes with that candidate's
-    constants: a batch of two candidates gives each candidate's results flown alone, to float
-    rounding (other batch layout), on episodes of different lengths (the runner's flight order)."""
+    constants (the observer's filter, or the inner loop's gains): a batch of two candidates gives
+    each candidate's results flown alone, to float rounding (other batch layout), on episodes of
+    different lengths (the runner's flight order)."""
     cfg = _steady(ControllerConfig(disturbance="observer"))
     cfg = replace(cfg, trajectories=replace(cfg.trajectories, hover_duration_s=2.0, horizontal_duration_s=3.0),
                   timing=replace(cfg.timing, hold_control_steps=1))
     scenarios = make_scenarios(2, traj_id=["hover", "lawnmower_h"], altitude_m=5.0, wind_speed_ref_m_s=6.0,
                                turb_intensity=0.0, start_step=-1)
-    candidates = [ControllerConfig(feedback="truth", disturbance="observer", observer_tau_s=t) for t in (0.1, 1.0)]
+    dob = ControllerConfig(feedback="truth", disturbance="observer")
+    candidates = ([replace(dob, observer_tau_s=t) for t in (0.1, 1.0)] if family == "observer_tau"
+                  else [stiffer_inner_loop(dob, s) for s in (1.0, 4.0)])
     both = fly_candidates("horizontal", candidates, scenarios, base_wind_input="zero", config=cfg)
     for candidate, result in zip(candidates, both):
         alone = fly_candidates("horizontal", [candidate], scenarios, base_wind_input="zero", config=cfg)[0]
@@ -345,3 +349,17 @@ def test_the_report_names_the_run_that_flew_each_family():
     text = classical_section({"horizontal": search}, {})
     assert "Flown by another run: PD + disturbance observer: `python recipes/tune_base_controllers.py` at `aaa1111`." in text
     assert "| PD + L1 adaptive | tau (s) = 0.1 **(chosen)** | 0.620 |" in text
+
+
+def test_stiffer_inner_loop_keeps_the_attitude_damping():
+    """``K_R x s`` with ``K_omega x sqrt(s)``: the attitude loop's damping ratio
+    ``K_omega / (2 sqrt(J K_R))`` is unchanged and its natural frequency ``sqrt(K_R / J)`` is
+    ``sqrt(s)`` times the paper's; a non-positive scale is refused."""
+    paper, inertia = ControllerConfig(), VehicleConfig().inertia_kg_m2
+    stiff = stiffer_inner_loop(paper, 4.0)
+    for axis, j in enumerate(inertia):
+        zeta = lambda c: c.k_rate[axis] / (2 * math.sqrt(j * c.k_att[axis]))  # noqa: E731
+        assert zeta(stiff) == pytest.approx(zeta(paper), rel=1e-12)
+        assert math.sqrt(stiff.k_att[axis] / j) == pytest.approx(2 * math.sqrt(paper.k_att[axis] / j), rel=1e-12)
+    with pytest.raises(ValueError, match="scale=0"):
+        stiffer_inner_loop(paper, 0.0)

@@ -372,6 +372,15 @@ def test_lever_settings_are_catalogue_names_or_named_recipe_flags():
         parse_lever("mem 8=--memory-frames 8", "horizontal")
 
 
+def test_screen_plan_refuses_more_validation_episodes_than_the_sweep_has_before_training():
+    from quadwind_trl.rl.screening import ScreenPlan
+
+    n = validation_scenarios("horizontal").batch_size[0]
+    assert ScreenPlan(val_episodes=n).val_episodes == n
+    with pytest.raises(ValueError, match=rf"ScreenPlan.val_episodes={n + 1}; allowed: 1 to {n} \(the horizontal"):
+        ScreenPlan(val_episodes=n + 1)
+
+
 def test_screen_levers_quick_writes_a_row_per_run_a_table_and_resumes_from_disk(tmp_path):
     import os
     import subprocess

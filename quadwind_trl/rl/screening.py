@@ -100,6 +100,11 @@ class ScreenPlan:
             raise ValueError(f"ScreenPlan.levers: the names {names} repeat; allowed: each name once")
         if self.frames < 1:
             raise ValueError(f"ScreenPlan.frames={self.frames}; allowed: >= 1")
+        if self.val_episodes is not None:  # refused now, not after the first run has trained
+            n = validation_scenarios(self.regime).batch_size[0]
+            if not 1 <= self.val_episodes <= n:
+                raise ValueError(f"ScreenPlan.val_episodes={self.val_episodes}; allowed: 1 to {n} (the {self.regime} "
+                                 "validation sweep), or None for all of it")
 
     def row_path(self, lever: str, seed: int) -> Path:
         return self.out / "rows" / f"{lever}_seed{seed}.json"

@@ -40,17 +40,18 @@ from .training import on_paper_pd
 def per_row_controller(candidates: Sequence[ControllerConfig], row_candidate: torch.Tensor, config: EnvConfig,
                        device: torch.device | str = "cpu") -> CascadeController:
     """One :class:`CascadeController` whose env row ``i`` flies ``candidates[row_candidate[i]]``:
-    their integral gain and limit and observer filter gain as per-row tensors.
-    The candidates must be of one family (the same disturbance model; a candidate without integral
-    action is the family's ``Ki = 0`` row) and share the cascade's PD gains."""
+    their integral gain and limit, observer filter gain and inner-loop (attitude and rate) gains as
+    per-row tensors. The candidates must be of one family (the same disturbance model; a candidate
+    without integral action is the family's ``Ki = 0`` row) and share the outer loop's PD gains."""
     if not candidates:
         raise ValueError("per_row_controller: no candidates")
     families = sorted({c.disturbance for c in candidates})
     if len(families) > 1:
         raise ValueError(f"per_row_controller: candidates of one disturbance model only; got {families}")
-    pd_fields = {(c.kp_pos, c.kd_pos, c.k_att, c.k_rate, c.max_tilt_deg, c.pos_error_limit_m, c.feedback) for c in candidates}
+    pd_fields = {(c.kp_pos, c.kd_pos, c.max_tilt_deg, c.pos_error_limit_m, c.feedback) for c in candidates}
     if len(pd_fields) > 1:
-        raise ValueError("per_row_controller: the candidates differ in their PD cascade; only the classical additions may")
+        raise ValueError("per_row_controller: the candidates differ in their outer loop; only the classical additions "
+                         "and the inner loop's gains may")
     dt = config.timing.control_dt_s
     extras = [ClassicalParams.from_config(c, config.vehicle, dt, device) for c in candidates]
 
@@ -65,7 +66,9 @@ def per_row_controller(candidates: Sequence[ControllerConfig], row_candidate: to
         integral_limit=rows([e.integral_limit for e in extras]),
         observer_gain=rows([torch.tensor([e.observer_gain], device=device) for e in extras]),
     )
-    return CascadeController(ControllerParams.from_config(candidates[0], config.vehicle, device), extra)
+    inner = [ControllerParams.from_config(c, config.vehicle, device) for c in candidates]
+    pd = replace(inner[0], k_att=rows([p.k_att for p in inner]), k_rate=rows([p.k_rate for p in inner]))
+    return CascadeController(pd, extra)
 
 
 @dataclass(frozen=True)
@@ -139,8 +142,8 @@ def select_candidate(rows: Sequence[dict], pd_crashed: int) -> dict:
 
 
 FAMILY_LABEL = {"pid": "PD + integral (PID)", "dob": "PD + disturbance observer", "l1": "PD + L1 adaptive",
-                "pid_ff": "PD + integral + wind feed-forward"}
-FIELD_LABEL = {"ki_pos": "K_i (1/s^3)", "observer_tau_s": "tau (s)"}
+                "pid_ff": "PD + integral + wind feed-forward", "dob_inner": "PD + disturbance observer, stiffer inner loop"}
+FIELD_LABEL = {"ki_pos": "K_i (1/s^3)", "observer_tau_s": "tau (s)", "k_att": "K_R roll (N m/rad; K_omega x sqrt)"}
 POLICY_KINDS = (("wind-aware RL", "estimate"), ("trained-blind RL", "zero"), ("trained-oracle RL", "truth"))
 
 
