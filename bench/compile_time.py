@@ -6,7 +6,7 @@ safe with two processes at once and with a corrupt entry.
     python bench/compile_time.py --fresh-cache          # the first process starts from an empty cache
     python bench/compile_time.py --mode static          # compile_step="static" (default: the library's, True)
     python bench/compile_time.py --fresh-cache --concurrent        # two processes at once on one empty cache
-    python bench/compile_time.py --fresh-cache --corrupt kernels   # truncate the cache's files between them
+    python bench/compile_time.py --fresh-cache --corrupt entries   # truncate the cache's files between them
 
 Each of ``--processes`` fresh interpreters (one after the other, or with ``--concurrent`` all at
 once, sharing the compile cache: ``quadwind_trl.envs.control_step.compile_cache_dir``, or with
@@ -16,19 +16,21 @@ its second. One parseable line per env::
 
     compile_time process=1 mode=default N=16 first_step_s=... second_step_ms=... compiled_frames=1
         graphs=1 fxgraph_cache_hit=0 fxgraph_cache_miss=1 aot_cache_hit=0 aot_cache_miss=1
-        state_sha=... cache_dir=... load_1min=...
+        dynamo_trace_s=... inductor_load_s=... state_sha=... cache_dir=... load_1min=...
 
 ``compiled_frames`` counts dynamo's compilations in the process so far: a size that adds none
 reused the graph (with the default, the batch dimension is symbolic; with static sizes each size
 is a graph of its own); ``fxgraph_cache_hit``/``miss`` are inductor's FX-graph cache lookups so
 far (a hit loads compiled code instead of compiling C++), ``aot_cache_hit``/``miss`` the
-AOTAutograd cache's. ``state_sha`` is a hash of the env's state after its ``--steps`` steps (the same
-episodes and actions in every process and mode): equal in every process, the same numbers were
-flown; equal between ``--mode static`` and the default, the two compiled steps fly the same bits. ``--corrupt``
-truncates, after the first process, every file of one kind in the cache to half its length
-(``fxgraph``: the FX-graph entries, ``aot``: the AOTAutograd entries, ``kernels``: the compiled
-C++ libraries, ``all``); the line ``compile_cache_check`` then says whether every later process
-flew the first one's numbers.
+AOTAutograd cache's; ``dynamo_trace_s`` is dynamo's tracing of the step's Python so far (every
+process traces, cache or not) and ``inductor_load_s`` the loading of cached compiled code.
+``state_sha`` is a hash of the env's state after its ``--steps`` steps (the same episodes and
+actions in every process and mode): equal in every process, the same numbers were flown; equal
+between ``--mode static`` and the default, the two compiled steps fly the same bits.
+``--corrupt`` (with ``--fresh-cache``) truncates, after the first process, every file of one kind
+in the cache to half its length (``entries``: the FX-graph and AOTAutograd caches' pickled
+entries, ``kernels``: the compiled C++ libraries, ``all``); the line ``compile_cache_check`` then
+says whether every later process flew the first one's numbers.
 """
 from __future__ import annotations
 
@@ -47,13 +49,14 @@ from machine import load_1min, machine_line
 
 #: --mode: QuadWindEnv's compile_step
 MODES = {"default": True, "static": "static", "dynamic": "dynamic"}
-#: --corrupt: which of the cache's files are truncated (a glob under the cache folder)
-CORRUPTIBLE = {"fxgraph": "fxgraph/**/*", "aot": "aotautograd/**/*", "kernels": "**/*.so", "all": "**/*"}
+#: --corrupt: which of the cache's files are truncated (globs under the cache folder): the pickled
+#: entries of inductor's FX-graph and AOTAutograd caches, the compiled C++ libraries, or every file
+CORRUPTIBLE = {"entries": ("fxgraph/**/*", "aotautograd/**/*"), "kernels": ("**/*.so",), "all": ("**/*",)}
 
 
 def one_process(sizes: list[int], threads: int, mode: str, steps: int) -> list[dict]:
     """In this process: a compiled env per size flown ``steps`` steps, its first and second timed."""
-    from torch._dynamo.utils import counters
+    from torch._dynamo.utils import compile_times, counters
     # inductor's own folder (where the library points it), read from torch so that the bench
     # also times commits from before the library chose the folder
     from torch._inductor.runtime.cache_dir_utils import cache_dir
@@ -81,13 +84,21 @@ def one_process(sizes: list[int], threads: int, mode: str, steps: int) -> list[d
                      "fxgraph_cache_miss": counters["inductor"]["fxgraph_cache_miss"],
                      "aot_cache_hit": counters["aot_autograd"]["autograd_cache_hit"],
                      "aot_cache_miss": counters["aot_autograd"]["autograd_cache_miss"],
+                     "dynamo_trace_s": round(_compile_time(compile_times, "bytecode_tracing"), 1),
+                     "inductor_load_s": round(_compile_time(compile_times, "AOTAutogradCache.inductor_load"), 1),
                      "state_sha": state.hexdigest()[:16], "cache_dir": cache_dir(), "load_1min": round(load_1min(), 2)})
     return rows
 
 
+def _compile_time(compile_times, phase: str) -> float:
+    """Seconds the process spent so far in one of dynamo's timed compile phases (0 if none)."""
+    names, values = compile_times(repr="csv", aggregate=True)
+    return float(values[names.index(phase)]) if phase in names else 0.0
+
+
 def corrupt(folder: Path, kind: str) -> int:
     """Truncate every file of ``kind`` under ``folder`` to half its length; how many were."""
-    files = [p for p in folder.glob(CORRUPTIBLE[kind]) if p.is_file() and p.stat().st_size > 1]
+    files = [p for pattern in CORRUPTIBLE[kind] for p in folder.glob(pattern) if p.is_file() and p.stat().st_size > 1]
     for path in files:
         path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     return len(files)
@@ -119,8 +130,9 @@ def main() -> None:
         return
     if args.steps < 2:
         parser.error(f"--steps={args.steps}; allowed: >= 2 (the first and the second step are timed)")
-    if args.concurrent and args.corrupt:
-        parser.error("--corrupt truncates the cache between processes: not with --concurrent")
+    if args.corrupt and (args.concurrent or not args.fresh_cache):
+        parser.error("--corrupt truncates the cache between processes: with --fresh-cache (never the user's "
+                     "cache), not with --concurrent")
     print(machine_line(args.threads), flush=True)
     env = dict(os.environ)
     command = [sys.executable, __file__, "--single", "--threads", str(args.threads), "--mode", args.mode,
