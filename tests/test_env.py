@@ -604,6 +604,27 @@ def test_an_unwritable_compile_cache_names_the_variable(tmp_path, monkeypatch):
     assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == "unchanged"
 
 
+def test_a_failed_compile_names_the_cache_folder(monkeypatch, tmp_path):
+    """A compile that fails (e.g. on a truncated library in the cache, which inductor trusts) says
+    which folder to delete: torch's own message does not."""
+    import torch._dynamo.exc
+
+    from quadwind_trl.envs import control_step
+
+    monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path))
+
+    def failing_compile(*args):
+        raise torch._dynamo.exc.BackendCompilerFailed("inductor", RuntimeError("a truncated .so"), None)
+
+    env = QuadWindEnv(EnvConfig(), batch_size=[2], compile_step=True)
+    env._advance._function = failing_compile
+    td = env.reset()
+    td["action"] = torch.zeros(2, 4)
+    with pytest.raises(torch._dynamo.exc.BackendCompilerFailed) as failed:
+        env.step(td)
+    assert any(str(control_step.compile_cache_dir()) in note and "delete" in note for note in failed.value.__notes__)
+
+
 def test_compile_step_choices():
     with pytest.raises(ValueError, match="compile_step"):
         QuadWindEnv(EnvConfig(), batch_size=[2], compile_step="fast")

@@ -203,5 +203,14 @@ class CompiledControlStep:
         if first and self.dynamic:  # a graph traced with N symbolic keeps it so: later calls need no marks
             for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
                 torch._dynamo.maybe_mark_dynamic(leaf, 0)
-        new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne, *totals)
+        try:
+            new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne,
+                                          *totals)
+        except torch._dynamo.exc.BackendCompilerFailed as error:
+            # inductor trusts a compiled library in its cache because it exists: a truncated one
+            # (a compile killed while writing it, a full disk) fails every later compile, and
+            # only the folder's path, which torch's message does not give, tells the user the fix
+            error.add_note(f"the compiled step's cache is {compile_cache_dir()}: where the compile fails on a file "
+                           "there (a truncated library), delete that folder and run again")
+            raise
         return (_rebuild(layout.state, new, state.batch_size), *totals)
