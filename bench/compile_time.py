@@ -140,24 +140,29 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="quadwind-compile-") as fresh:
         if args.fresh_cache:  # the library's variable; inductor's for commits from before it
             env["QUADWIND_TRL_COMPILE_CACHE"] = env["TORCHINDUCTOR_CACHE_DIR"] = fresh
+        flown: list[str] = []
+
+        def report(process: int, out: str) -> list[dict]:
+            """Print one process's rows as they come (a later failure keeps them) and keep their hashes."""
+            rows = json.loads(out.strip().splitlines()[-1])
+            for row in rows:
+                flown.append(row["state_sha"])
+                print("compile_time " + " ".join(f"{k}={v}" for k, v in {"process": process, "mode": args.mode,
+                                                                         **row}.items()), flush=True)
+            return rows
+
         if args.concurrent:
             running = [subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
                        for _ in range(args.processes)]
-            outputs = [_output(p.args, *p.communicate(), p.returncode) for p in running]
+            for process, p in enumerate(running, 1):
+                report(process, _output(p.args, *p.communicate(), p.returncode))
         else:
-            outputs = []
-            for process in range(args.processes):
+            for process in range(1, args.processes + 1):
                 run = subprocess.run(command, env=env, capture_output=True, text=True)
-                outputs.append(_output(command, run.stdout, run.stderr, run.returncode))
-                if process == 0 and args.corrupt:
-                    folder = Path(json.loads(outputs[0].strip().splitlines()[-1])[0]["cache_dir"])
+                rows = report(process, _output(command, run.stdout, run.stderr, run.returncode))
+                if process == 1 and args.corrupt:
+                    folder = Path(rows[0]["cache_dir"])
                     print(f"compile_cache_corrupted kind={args.corrupt} files={corrupt(folder, args.corrupt)}", flush=True)
-        flown = []
-        for process, out in enumerate(outputs, 1):
-            for row in json.loads(out.strip().splitlines()[-1]):
-                flown.append(row["state_sha"])
-                row = {"process": process, "mode": args.mode, **row}
-                print("compile_time " + " ".join(f"{k}={v}" for k, v in row.items()), flush=True)
     n = len(args.sizes)
     same = all(flown[i] == flown[i % n] for i in range(len(flown)))
     print(f"compile_cache_check same_numbers_every_process={same}", flush=True)
