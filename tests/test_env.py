@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import replace
 from pathlib import Path
 
@@ -531,43 +532,97 @@ def test_every_sensor_preset_builds_and_flies():
 
 
 @pytest.mark.long
-def test_compiled_step_matches_eager():
-    """The compiled step (static sizes, the default) flies as the eager one, and a second env of
-    the same configuration and batch size, with a partial reset, compiles nothing more. Its env
-    is the one the horizontal replay record's compiled flights use (tests/test_replay.py: the
-    shipped horizontal policy's env on the quick sweep's flights, 3 rows), so one compilation
-    serves both: inductor caches the graph on disk, and this test, marked long, is collected
-    first, before the replay test."""
+def test_compiled_step_matches_eager_at_every_size():
+    """The compiled step (the default: the batch dimension symbolic) flies as the eager one at
+    two batch sizes, and the second size, a partial reset and a second env compile nothing more
+    (one graph for every N), with inductor's caches in the library's folder. Its first env is the
+    one the horizontal replay record's compiled flights use (tests/test_replay.py: the shipped
+    horizontal policy's env on the quick sweep's flights, 3 rows), so one compilation serves both:
+    inductor caches the graph on disk, and this test, marked long, is collected first, before the
+    replay test."""
+    from torch._dynamo.utils import counters
+    from torch._inductor.runtime.cache_dir_utils import cache_dir
+
+    from quadwind_trl.envs.control_step import compile_cache_dir
+
+    cfg = _replay_record_config()
+    sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
+                        turb_seed=torch.tensor([3, 4, 5]), sensor_seed=torch.tensor([5, 6, 7]))
+    _assert_flies_as(_stepped(QuadWindEnv(cfg, batch_size=[3], compile_step=True), sc, 60),
+                     _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60))
+    compilations = counters["frames"]["ok"]
+    _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[5], compile_step=True), 5),
+                     _with_partial_reset(QuadWindEnv(cfg, batch_size=[5]), 5))
+    assert counters["frames"]["ok"] == compilations
+    assert Path(cache_dir()) == compile_cache_dir() and any((compile_cache_dir() / "fxgraph").rglob("*"))
+
+
+@pytest.mark.slow
+def test_static_compiled_step_matches_eager():
+    """compile_step="static": the compiled step flies as the eager one, and a second env of the
+    same configuration and batch size, with a partial reset, compiles nothing more. Slow: a
+    compilation of its own (minutes on two cores)."""
     from torch._dynamo.utils import counters
 
     cfg = _replay_record_config()
     sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
                         turb_seed=torch.tensor([3, 4, 5]), sensor_seed=torch.tensor([5, 6, 7]))
-    eager = _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60)
-    compiled = _stepped(QuadWindEnv(cfg, batch_size=[3], compile_step=True), sc, 60)
-    _assert_flies_as(compiled, eager)
+    _assert_flies_as(_stepped(QuadWindEnv(cfg, batch_size=[3], compile_step="static"), sc, 60),
+                     _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60))
     compilations = counters["frames"]["ok"]
-    _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[3], compile_step=True), 3),
+    _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[3], compile_step="static"), 3),
                      _with_partial_reset(QuadWindEnv(cfg, batch_size=[3]), 3))
     assert counters["frames"]["ok"] == compilations
 
 
-@pytest.mark.slow
-def test_dynamic_compiled_step_matches_eager_at_every_size():
-    """compile_step="dynamic": the compiled step flies as the eager one at two batch sizes, and
-    the second size, a partial reset and a second env compile nothing more (one graph, its batch
-    dimension symbolic). Slow: a compilation of its own (minutes on two cores)."""
-    from torch._dynamo.utils import counters
+def test_the_compile_cache_is_the_users_and_one_folder_per_processor(tmp_path, monkeypatch):
+    """The compile cache lives in the user's cache folder (XDG_CACHE_HOME), or where the library's
+    variable says, in a folder of the processor, kernel path and torch version: inductor's keys
+    leave the processor out, so a cache shared with another one must not be looked at."""
+    from quadwind_trl.envs import control_step
 
-    cfg = _replay_record_config()
-    sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
-                        turb_seed=torch.tensor([3, 4, 5]), sensor_seed=torch.tensor([5, 6, 7]))
-    _assert_flies_as(_stepped(QuadWindEnv(cfg, batch_size=[3], compile_step="dynamic"), sc, 60),
-                     _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60))
-    compilations = counters["frames"]["ok"]
-    _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[5], compile_step="dynamic"), 5),
-                     _with_partial_reset(QuadWindEnv(cfg, batch_size=[5]), 5))
-    assert counters["frames"]["ok"] == compilations
+    monkeypatch.delenv(control_step.COMPILE_CACHE_ENV, raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    here = control_step.compile_cache_dir()
+    assert here.parent == tmp_path / "xdg" / "quadwind_trl" / "compile" and here.name.startswith(f"torch-{torch.__version__}-")
+    monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path / "mine"))
+    assert control_step.compile_cache_dir() == tmp_path / "mine" / here.name
+    real = control_step.platform_info()
+    for key, other in (("cpu", "another processor"), ("aten_cpu_capability", "AVX2"), ("torch", "2.99.0")):
+        monkeypatch.setattr(control_step, "platform_info", lambda k=key, v=other: {**real, k: v})
+        assert control_step.compile_cache_dir().name != here.name, key
+
+
+def test_an_unwritable_compile_cache_names_the_variable(tmp_path, monkeypatch):
+    from quadwind_trl.envs import control_step
+
+    (tmp_path / "a_file").write_text("")
+    monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path / "a_file" / "cache"))
+    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", "unchanged")  # restored after the test
+    with pytest.raises(OSError, match=control_step.COMPILE_CACHE_ENV):
+        control_step._use_compile_cache()
+    assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == "unchanged"
+
+
+def test_a_failed_compile_names_the_cache_folder(monkeypatch, tmp_path):
+    """A compile that fails (e.g. on a truncated library in the cache, which inductor trusts) says
+    which folder to delete: torch's own message does not."""
+    import torch._dynamo.exc
+
+    from quadwind_trl.envs import control_step
+
+    monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path))
+
+    def failing_compile(*args):
+        raise torch._dynamo.exc.BackendCompilerFailed("inductor", RuntimeError("a truncated .so"), None)
+
+    env = QuadWindEnv(EnvConfig(), batch_size=[2], compile_step=True)
+    env._advance._function = failing_compile
+    td = env.reset()
+    td["action"] = torch.zeros(2, 4)
+    with pytest.raises(torch._dynamo.exc.BackendCompilerFailed) as failed:
+        env.step(td)
+    assert any(str(control_step.compile_cache_dir()) in note and "delete" in note for note in failed.value.__notes__)
 
 
 def test_compile_step_choices():

@@ -7,21 +7,24 @@ through ``torch.compile``, one compiled function per process for every env:
 * its simulator and task are passed in: dynamo guards on their constants (the config's values,
   the tensors' shapes), not on an env instance, so a second env of the same configuration and
   batch size reuses the first one's compiled step;
-* static sizes by default (``QuadWindEnv(compile_step=True)``): one graph per configuration and
-  batch size, the kernels every compiled result was recorded with. With ``compile_step="dynamic"``
-  the batch dimension is traced symbolic (``maybe_mark_dynamic``): a new ``N`` reuses the graph
-  (``N = 1`` gets one of its own: torch specialises sizes 0 and 1). The TensorDicts cross the
-  compiled boundary as flat tuples of their leaves, rebuilt inside around the leaves' batch
-  size: a TensorDict's ``batch_size`` is a Python constant to dynamo, which would pin ``N``;
+* the batch dimension symbolic by default (``QuadWindEnv(compile_step=True)``, or ``"dynamic"``;
+  marked with ``maybe_mark_dynamic``): one graph for every ``N`` and every partial reset (``N = 1``
+  gets one of its own: torch specialises sizes 0 and 1). ``compile_step="static"`` compiles one
+  graph per configuration and batch size instead. The TensorDicts cross the compiled boundary as
+  flat tuples of their leaves, rebuilt inside around the leaves' batch size: a TensorDict's
+  ``batch_size`` is a Python constant to dynamo, which would pin ``N``;
 * what is traced is the graph the step has always had: the eager step's shortcuts (numbers made
   tensors, fused ops) are taken only eagerly (:mod:`.operands`);
 * inductor's caches (the FX graph and AOTAutograd caches, on by default) keep the compiled code
-  on disk, in :func:`compile_cache_dir`: a later process on the same machine traces the step
-  again (dynamo's part) but compiles no C++ (minutes).
+  on disk, in :func:`compile_cache_dir` (the user's cache folder): a later process on the same
+  machine traces the step again (dynamo's part) but compiles no C++ (minutes).
 """
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
@@ -30,6 +33,7 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
+from ..manifest import platform_info
 from .operands import operands, tracing
 from .tensordicts import entry, select_rows, unchecked
 
@@ -44,15 +48,43 @@ if TYPE_CHECKING:
 COMPILED_STEPS_PER_PROCESS = 64
 
 
-def compile_cache_dir() -> Path:
-    """Where compiled steps are kept between processes: inductor's cache folder, the environment
-    variable ``TORCHINDUCTOR_CACHE_DIR``, by default ``torchinductor_<user>`` in the system's
-    temporary folder (on Linux emptied at a reboot). Set it before starting Python
-    to move the cache: torch writes its default into the variable the first time it looks, and
-    importing torchrl already does."""
-    from torch._inductor.runtime.cache_dir_utils import cache_dir
+#: The environment variable that moves the compile cache: a folder, under which each processor
+#: and torch version gets a folder of its own (:func:`compile_cache_dir`)
+COMPILE_CACHE_ENV = "QUADWIND_TRL_COMPILE_CACHE"
+#: What inductor's cache keys leave out and its compiled code depends on (keys of
+#: :func:`~quadwind_trl.manifest.platform_info`): it compiles C++ with ``-march=native`` for the
+#: vector instruction set ATen's capability (``ATEN_CPU_CAPABILITY``) allows, but keys an entry by
+#: the graph, its config and the torch sources only, so a cache shared with another processor (a
+#: network home folder) or kernel path would load kernels built for other instructions (a run
+#: under ``ATEN_CPU_CAPABILITY=avx2`` that reused an AVX-512 cache crashed)
+_COMPILED_CODE_PLATFORM = ("machine", "cpu", "vector_isa", "aten_cpu_capability", "torch")
 
-    return Path(cache_dir())
+
+def compile_cache_dir() -> Path:
+    """Where compiled steps are kept between processes: ``quadwind_trl/compile`` in the user's
+    cache folder (``$XDG_CACHE_HOME``, by default ``~/.cache``), or the folder the environment
+    variable ``QUADWIND_TRL_COMPILE_CACHE`` names, and in it one folder per processor, ATen
+    kernel path and torch version (``torch-2.13.0+cpu-avx512-<hash of the processor>``): entries
+    made elsewhere are never looked at. The process's first compiled env points inductor's
+    cache (``TORCHINDUCTOR_CACHE_DIR``) there, for every ``torch.compile`` of the process."""
+    user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
+    root = Path(os.environ.get(COMPILE_CACHE_ENV) or user_cache / "quadwind_trl" / "compile").expanduser().absolute()
+    platform = platform_info()
+    identity = json.dumps({k: platform[k] for k in _COMPILED_CODE_PLATFORM}, sort_keys=True)
+    digest = hashlib.sha256(identity.encode()).hexdigest()[:12]
+    return root / f"torch-{platform['torch']}-{platform['aten_cpu_capability'].lower()}-{digest}"
+
+
+def _use_compile_cache() -> Path:
+    """Point inductor's caches at :func:`compile_cache_dir` (made if missing)."""
+    folder = compile_cache_dir()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise OSError(f"compile cache folder {folder} cannot be made ({error.strerror}); set {COMPILE_CACHE_ENV} "
+                      "to a writable folder") from error
+    os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(folder)
+    return folder
 
 
 def held_control_step(sim: QuadSimulator, task: Task, params: TensorDict, state: TensorDict, action: Tensor,
@@ -125,11 +157,12 @@ def _flat_held_control_step(sim: QuadSimulator, task: Task, layout: _Layout, par
 def _compiled_function(dynamic: bool) -> Callable:
     """The process's compiled :func:`_flat_held_control_step` of one kind, static sizes or a
     symbolic batch dimension (compiled at its first call, not here), with dynamo's recompile
-    limit raised to :data:`COMPILED_STEPS_PER_PROCESS`. Static: ``dynamic=False``, no size ever
-    made symbolic (dynamo's default would make ``N`` symbolic at an env's second batch size,
-    and kernels of symbolic sizes are other kernels)."""
+    limit raised to :data:`COMPILED_STEPS_PER_PROCESS` and inductor's caches in
+    :func:`compile_cache_dir`. Static: ``dynamic=False``, no size ever made symbolic (dynamo's
+    default would make ``N`` symbolic at an env's second batch size)."""
     import torch._dynamo
 
+    _use_compile_cache()
     cfg = torch._dynamo.config
     cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_STEPS_PER_PROCESS)
     return torch.compile(_flat_held_control_step, dynamic=None if dynamic else False)
@@ -153,7 +186,7 @@ class CompiledControlStep:
     (module docstring); called as the eager one, without ``sim``, ``task`` and ``merge``.
     ``dynamic``: the batch dimension symbolic (one graph for every ``N``), else static sizes."""
 
-    def __init__(self, sim: QuadSimulator, task: Task, dynamic: bool = False):
+    def __init__(self, sim: QuadSimulator, task: Task, dynamic: bool = True):
         self.sim, self.task, self.dynamic = sim, task, dynamic
         self._function = _compiled_function(dynamic)
         self._layout: _Layout | None = None
@@ -170,5 +203,14 @@ class CompiledControlStep:
         if first and self.dynamic:  # a graph traced with N symbolic keeps it so: later calls need no marks
             for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
                 torch._dynamo.maybe_mark_dynamic(leaf, 0)
-        new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne, *totals)
+        try:
+            new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne,
+                                          *totals)
+        except torch._dynamo.exc.BackendCompilerFailed as error:
+            # inductor trusts a compiled library in its cache because it exists: a truncated one
+            # (a compile killed while writing it, a full disk) fails every later compile, and
+            # only the folder's path, which torch's message does not give, tells the user the fix
+            error.add_note(f"the compiled step's cache is {compile_cache_dir()}: where the compile fails on a file "
+                           "there (a truncated library), delete that folder and run again")
+            raise
         return (_rebuild(layout.state, new, state.batch_size), *totals)

@@ -93,8 +93,8 @@ def _ordinary(value):
     return value.clone() if value.is_inference() or value._is_view() else value
 
 
-# QuadWindEnv(compile_step=...): eager, compiled with static sizes (True is "static"), or compiled
-# with the batch dimension symbolic
+# QuadWindEnv(compile_step=...): eager, compiled with the batch dimension symbolic (True is
+# "dynamic"), or compiled with static sizes
 COMPILE_STEP_CHOICES = (False, True, "static", "dynamic")
 
 
@@ -142,11 +142,12 @@ class QuadWindEnv(EnvBase):
     ``RewardConfig.crash_tilt_deg``, non-finite state: reward ``-100``) and are truncated at the
     trajectory's end; ``task=`` replaces reward and termination (:mod:`quadwind_trl.envs.task`).
 
-    ``compile_step``: ``False`` runs each control step eagerly; ``True`` (or ``"static"``)
-    through ``torch.compile`` with static sizes, the step every compiled result was recorded
-    with (one compilation per configuration and batch size, kept on disk between processes);
-    ``"dynamic"`` with the batch dimension symbolic, one compilation for every batch size
-    (:mod:`quadwind_trl.envs.control_step`).
+    ``compile_step``: ``False`` runs each control step eagerly; ``True`` (or ``"dynamic"``)
+    through ``torch.compile`` with the batch dimension symbolic, one compilation per
+    configuration for every batch size and partial reset; ``"static"`` with static sizes, one
+    compilation per configuration and batch size. Compiled code is kept on disk between
+    processes (:func:`~quadwind_trl.envs.control_step.compile_cache_dir`;
+    :mod:`quadwind_trl.envs.control_step`).
 
     The simulator's per-episode ``params`` and dynamic ``state`` (TensorDicts, keys in
     :mod:`quadwind_trl.envs.simulator`) are ``env.params`` and ``env.state``.
@@ -186,7 +187,7 @@ class QuadWindEnv(EnvBase):
         self.task = task if task is not None else TrackingTask(self.config, self.device)
         if compile_step not in COMPILE_STEP_CHOICES:
             raise ValueError(f"QuadWindEnv.compile_step={compile_step!r}; allowed: {', '.join(map(repr, COMPILE_STEP_CHOICES))}")
-        self._advance = (CompiledControlStep(self.sim, self.task, dynamic=compile_step == "dynamic") if compile_step
+        self._advance = (CompiledControlStep(self.sim, self.task, dynamic=compile_step != "static") if compile_step
                          else functools.partial(held_control_step, self.sim, self.task))
         # a decision's first control step starts with no row ended, so its merge would select the
         # whole new state: eagerly that is a select per state leaf, skipped; compiled, the merge

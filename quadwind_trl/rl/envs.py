@@ -110,9 +110,9 @@ class RLEnvSpec:
     desync_steps: int = 0  # first-episode random truncation (0: off; training uses ~ an episode length)
     obs_clip: float | None = 10.0  # observation clip after normalisation (None: off)
     # the simulator's control step through torch.compile (the RL stack's default: 3-5x the eager
-    # throughput at training batch sizes, for 20-110 s of compilation once per batch size and
-    # process); False flies it eagerly. The two agree to float rounding, not bit for bit, so a
-    # replay uses the setting the run recorded.
+    # throughput at training batch sizes, for minutes of compilation once for every batch size,
+    # kept on disk for later processes); False flies it eagerly. The two agree to float rounding,
+    # not bit for bit, so a replay uses the setting the run recorded.
     compile_step: bool = True
     ema_tau_s: float = DEFAULT_TAU_S  # s, the wind estimate's EMA time constant (0: raw estimate)
     # s between a row's estimator queries (a whole multiple of the log interval; the estimate is
