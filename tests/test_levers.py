@@ -358,6 +358,84 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
     assert math.isfinite(manifest["wall_time_s"])
 
 
+# --- value normalisation ---------------------------------------------------------------------------
+
+def test_value_norm_standardises_the_critics_targets_and_keeps_its_values_when_the_statistics_move():
+    from quadwind_trl.rl.update import PPOUpdate
+    from quadwind_trl.rl.value_norm import NormalizedValue
+
+    cfg = PPOConfig(hidden=(16, 16), value_norm=True)
+    torch.manual_seed(0)
+    plain_actor, plain_value = build_actor_critic(replace(cfg, value_norm=False), privileged_dim=3)
+    torch.manual_seed(0)
+    actor, value = build_actor_critic(cfg, privileged_dim=3)
+    # the same draws: the actor, its rollouts' random stream and the critic's weights are the plain run's
+    assert all(torch.equal(a, b) for a, b in zip(actor.state_dict().values(), plain_actor.state_dict().values()))
+    assert all(torch.equal(a, b) for a, b in zip(value.parameters(), plain_value.parameters()))
+    head = next(m for m in value.modules() if isinstance(m, NormalizedValue))
+    td = TensorDict({"observation": torch.randn(64, OBSERVATION_DIM), "privileged": torch.randn(64, 3)}, [64])
+    learner = PPOUpdate(actor, value, cfg)
+    targets = -35.0 + 20.0 * torch.randn(64, 1)  # return units: about the horizontal task's
+    before = value(td.clone())["state_value"]
+    head.update(targets)
+    assert torch.allclose(head.norm.mean, targets.mean(0), rtol=1e-6)
+    assert torch.allclose(head.norm.scale(), targets.std(0, unbiased=False), rtol=1e-5)
+    # PopArt's output preservation: the new statistics move no prediction (GAE's values stay the critic's)
+    assert torch.allclose(value(td.clone())["state_value"], before, rtol=1e-5, atol=1e-5)
+    # the critic's network outputs standardised values; the critic gives them in return units
+    raw = head.net(td["observation"], td["privileged"])
+    assert torch.allclose(value(td.clone())["state_value"], head.norm.mean + head.norm.scale() * raw, rtol=1e-6)
+    # the loss compares standardised prediction and target, and trains the critic the GAE reads
+    td["value_target"], td["advantage"] = targets + 5.0, torch.randn(64, 1)
+    loss = learner.loss.loss_critic(td)[0].mean()
+    expected = cfg.critic_coeff * ((head.norm.normalize(td["value_target"]) - raw) ** 2).mean()
+    assert torch.allclose(loss, expected, rtol=1e-5)
+    out_weight = head.net.mlp[-1].weight.clone()
+    learner.optim.zero_grad()
+    loss.backward()
+    learner.optim.step()
+    assert not torch.equal(out_weight, head.net.mlp[-1].weight)
+    with pytest.raises(ValueError, match=r"PPOConfig\.value_norm='yes'; allowed: True or False"):
+        PPOConfig(value_norm="yes").validate()
+
+
+def test_value_norm_is_recorded_checkpointed_continued_on_resume_and_another_setting_is_refused(tmp_path):
+    spec = hover_spec(duration_s=1.0)
+    cfg = PPOConfig(total_frames=2 * 32, num_envs=4, steps_per_env=8, epochs=1, minibatch=16, hidden=(32, 32),
+                    value_norm=True, eval_every_frames=0, checkpoint_every_frames=1)
+    out = tmp_path / "run"
+    PPOTrainer(spec, cfg, out, progress=False).train()
+    latest = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)
+    assert latest["ppo_config"]["value_norm"] is True
+    assert float(latest["value"]["module.norm.count"]) == 2 * 32 and float(latest["value"]["module.norm.m2"]) > 0
+    assert json.loads((out / "policy.json").read_text())["ppo_config"]["value_norm"] is True
+    assert json.loads((out / "config.json").read_text())["ppo_config"]["value_norm"] is True
+    std = (out / "logs" / "ppo" / "scalars" / "train" / "value_target_std.csv").read_text().split()
+    assert len(std) == 2 and all(float(r.split(",")[1]) > 0 for r in std)
+    load_policy(out / "policy.pt")  # the actor is rebuilt as any other
+    with pytest.raises(ResumeMismatch, match=r"PPOConfig\.value_norm=False but the checkpoint's run used True"):
+        PPOTrainer(spec, replace(cfg, value_norm=False, total_frames=3 * 32), out, progress=False).train(resume=True)
+    PPOTrainer(spec, replace(cfg, total_frames=3 * 32), out, progress=False).train(resume=True)
+    latest = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)
+    assert float(latest["value"]["module.norm.count"]) == 3 * 32  # continued, not restarted
+
+
+@pytest.mark.parametrize("lever", ["value_norm", "oracle_wind"])
+def test_the_value_norm_and_oracle_wind_catalogue_entries_train_a_quick_run_on_the_observer(tmp_path, lever):
+    from quadwind_trl.rl.screening import LEVERS
+
+    flags = LEVERS["horizontal"][lever]
+    # the oracle reads the true mean wind and runs no estimator; the other trains on the untrained one
+    estimator = () if lever == "oracle_wind" else ("--untrained-estimator",)
+    args = build_parser("horizontal", "").parse_args([*flags, *estimator, "--quick", "--base-controller", "dob",
+                                                      "--no-progress", "--out", str(tmp_path / "run")])
+    manifest = run("horizontal", args)
+    assert manifest["frames"] == 4 * 8 * 32 and manifest["env_spec"]["env_config"]["controller"]["disturbance"] == "observer"
+    assert manifest["ppo_config"]["value_norm"] is (lever == "value_norm")
+    assert manifest["env_spec"]["wind_input"] == ("truth" if lever == "oracle_wind" else "estimate")
+    assert math.isfinite(manifest["metrics"]["rmse"])
+
+
 # --- the screening recipe -------------------------------------------------------------------------
 
 def test_lever_settings_are_catalogue_names_or_named_recipe_flags():

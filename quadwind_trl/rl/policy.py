@@ -27,6 +27,7 @@ from ..manifest import repo_relative
 from ..validation import load_checkpoint
 from .config import ACTIVATIONS, PPOConfig
 from .envs import RLEnvSpec
+from .value_norm import NormalizedValue
 
 CHECKPOINT_FORMAT = 1
 # what a recurrent actor's GRU hands its MLP
@@ -91,9 +92,11 @@ def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_di
                        privileged_dim: int = 0, recurrent_hidden: int = 0) -> tuple[ProbabilisticActor, ValueOperator]:
     """TanhNormal actor (``observation`` -> ``action``, ``action_log_prob``) and value critic
     (``observation``, and with ``privileged_dim`` > 0 also ``privileged``: the asymmetric critic,
-    whose extra inputs the actor never reads). With ``recurrent_hidden`` > 0 the actor reads its
-    observations through a GRU of that size (TorchRL's ``GRUModule``: hidden state
-    ``recurrent_state``, restarted at 0 where ``is_init``) before its MLP."""
+    whose extra inputs the actor never reads; with ``cfg.value_norm`` its network's output is
+    standardised and rescaled to returns by :class:`~quadwind_trl.rl.value_norm.NormalizedValue`).
+    With ``recurrent_hidden`` > 0 the actor reads its observations through a GRU of that size
+    (TorchRL's ``GRUModule``: hidden state ``recurrent_state``, restarted at 0 where ``is_init``)
+    before its MLP."""
     act = ACTIVATIONS[cfg.activation]
     sizes = (obs_dim, *cfg.hidden)
     scale = AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=math.log(cfg.init_scale))
@@ -115,11 +118,10 @@ def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_di
         default_interaction_type=ExplorationType.DETERMINISTIC,
     )
     if privileged_dim:
-        value = ValueOperator(_ConcatInputs(_mlp((obs_dim + privileged_dim, *cfg.hidden, 1), act, 1.0)),
-                              in_keys=[OBSERVATION_KEY, PRIVILEGED_KEY])
+        critic, in_keys = _ConcatInputs(_mlp((obs_dim + privileged_dim, *cfg.hidden, 1), act, 1.0)), [OBSERVATION_KEY, PRIVILEGED_KEY]
     else:  # the paper's critic, with the parameter names of every policy file before the asymmetric one
-        value = ValueOperator(_mlp((*sizes, 1), act, 1.0), in_keys=[OBSERVATION_KEY])
-    return actor, value
+        critic, in_keys = _mlp((*sizes, 1), act, 1.0), [OBSERVATION_KEY]
+    return actor, ValueOperator(NormalizedValue(critic) if cfg.value_norm else critic, in_keys=in_keys)
 
 
 def action_scale(actor: ProbabilisticActor) -> float:

@@ -52,6 +52,11 @@ def _levers(regime: str) -> dict[str, tuple[str, ...]]:
         # the critic's targets on a steadier scale: rewards divided by the running std of the return
         "return_scaling": ("--reward-scaling", "return_std"),
         "longer_rollouts": ("--steps-per-env", "512"),  # twice the decisions per row and batch
+        # the critic's targets standardised by their running mean / std (PopArt-style, rl/value_norm.py)
+        "value_norm": ("--value-norm",),
+        # the residual reads the true mean wind instead of the estimate: the privileged upper bound
+        # of what wind information adds (the base law is unchanged)
+        "oracle_wind": ("--wind-input", "truth"),
     }
 
 
