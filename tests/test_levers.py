@@ -358,6 +358,25 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
     assert math.isfinite(manifest["wall_time_s"])
 
 
+def test_the_privileged_critic_is_the_plain_one_reading_more_and_leaves_the_actor_and_random_stream_as_they_were():
+    cfg = PPOConfig(hidden=(16, 16), seed=3)
+    torch.manual_seed(3)
+    plain_actor, plain_value = build_actor_critic(cfg)
+    plain_next = torch.rand(8)  # what the first rollout's exploration would draw next
+    torch.manual_seed(3)
+    actor, value = build_actor_critic(cfg, privileged_dim=12)
+    assert torch.equal(torch.rand(8), plain_next)
+    assert all(torch.equal(a, b) for a, b in zip(actor.state_dict().values(), plain_actor.state_dict().values()))
+    wide, plain = value.module.mlp, plain_value.module
+    assert torch.equal(wide[0].weight[:, :OBSERVATION_DIM], plain[0].weight) and torch.equal(wide[0].bias, plain[0].bias)
+    assert all(torch.equal(a, b) for a, b in zip(wide[1:].parameters(), plain[1:].parameters()))
+    # the privileged columns: orthogonal with the layer's gain, drawn from their own seeded stream
+    extra = wide[0].weight[:, OBSERVATION_DIM:]
+    assert torch.allclose(extra.T @ extra, 2.0 * torch.eye(12), atol=1e-5)
+    torch.manual_seed(99)
+    assert torch.equal(build_actor_critic(cfg, privileged_dim=12)[1].module.mlp[0].weight[:, OBSERVATION_DIM:], extra)
+
+
 # --- value normalisation ---------------------------------------------------------------------------
 
 def test_value_norm_standardises_the_critics_targets_and_keeps_its_values_when_the_statistics_move():

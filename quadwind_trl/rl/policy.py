@@ -58,6 +58,30 @@ class _ConcatInputs(nn.Module):
         return self.mlp(torch.cat(inputs, -1))
 
 
+# the seed offset of the generator that draws an asymmetric critic's privileged-input weights
+# (any fixed value: its stream must only differ from the run's, which is seeded with cfg.seed)
+PRIVILEGED_INIT_OFFSET = 104_729
+
+
+def _with_inputs(mlp: nn.Sequential, extra: int, seed: int) -> nn.Sequential:
+    """``mlp`` reading ``extra`` more inputs after its own. Their first-layer weights are drawn
+    (orthogonal, gain sqrt(2), as the layer's) from a generator of their own, seeded ``seed`` +
+    :data:`PRIVILEGED_INIT_OFFSET`, and the layer is rebuilt without drawing: the global random
+    stream, from which the rollouts draw their exploration, is then where the plain critic leaves
+    it. With and without the privileged lever a run's actor, its first rollouts and the critic's
+    weights on the observation are the same, so a screen compares the lever with the plain
+    residual seed by seed, on the critic alone."""
+    first = mlp[0]
+    columns = torch.empty(first.out_features, extra)
+    nn.init.orthogonal_(columns, gain=math.sqrt(2.0), generator=torch.Generator().manual_seed(seed + PRIVILEGED_INIT_OFFSET))
+    wide = nn.utils.skip_init(nn.Linear, first.in_features + extra, first.out_features)
+    with torch.no_grad():
+        wide.weight.copy_(torch.cat((first.weight, columns), -1))
+        wide.bias.copy_(first.bias)
+    mlp[0] = wide
+    return mlp
+
+
 def network_dims(env_spec: RLEnvSpec | Mapping) -> dict[str, int]:
     """The networks' input widths for an env spec (an :class:`RLEnvSpec` or a policy file's
     ``env_spec``; older files lack the learning levers' settings and get the paper's 23 inputs):
@@ -117,10 +141,9 @@ def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_di
         return_log_prob=True,
         default_interaction_type=ExplorationType.DETERMINISTIC,
     )
-    if privileged_dim:
-        critic, in_keys = _ConcatInputs(_mlp((obs_dim + privileged_dim, *cfg.hidden, 1), act, 1.0)), [OBSERVATION_KEY, PRIVILEGED_KEY]
-    else:  # the paper's critic, with the parameter names of every policy file before the asymmetric one
-        critic, in_keys = _mlp((*sizes, 1), act, 1.0), [OBSERVATION_KEY]
+    critic, in_keys = _mlp((*sizes, 1), act, 1.0), [OBSERVATION_KEY]  # the paper's critic
+    if privileged_dim:  # the same network, reading the privileged channels after the observation
+        critic, in_keys = _ConcatInputs(_with_inputs(critic, privileged_dim, cfg.seed)), [OBSERVATION_KEY, PRIVILEGED_KEY]
     return actor, ValueOperator(NormalizedValue(critic) if cfg.value_norm else critic, in_keys=in_keys)
 
 
