@@ -469,6 +469,25 @@ def test_lever_settings_are_catalogue_names_or_named_recipe_flags():
         parse_lever("mem 8=--memory-frames 8", "horizontal")
 
 
+def test_a_screen_row_says_when_one_episode_decides_the_mean_gain():
+    from quadwind_trl.rl.screening import ScreenRow, _gain, table
+
+    base = torch.ones(5)
+    policy = torch.tensor([0.9, 0.9, 0.9, 0.95, 5.0])  # four small wins, one episode lost by far
+    xy = _gain(base, policy, resamples=200)
+    assert math.isclose(xy["gain_pct"], 100 * (1 - 8.65 / 5), rel_tol=1e-6)  # the mean: -73 %
+    assert math.isclose(xy["median_episode_gain_pct"], 10.0, rel_tol=1e-6)  # the typical episode: +10 %
+    assert xy["worst_episode"] == {"index": 4, "base_m": 1.0, "policy_m": 5.0}
+    row = ScreenRow(lever="x", flags=[], seed=0, regime="horizontal", base="dob", frames=1, train_wall_s=1.0, wall_s=60.0,
+                    policy="p", git_commit=None, validation={"xy": xy, "z": _gain(base, base, 200),
+                                                              "crashed": {"base": 0, "policy": 0}})
+    assert "| +10.0 % | 4: 1.000 -> 5.000 m |" in table([row], "dob")
+    # a row written before screens recorded the tail still makes a table
+    old = replace(row, validation={**row.validation, "xy": {k: v for k, v in xy.items() if k not in
+                                                            ("median_episode_gain_pct", "worst_episode")}})
+    assert table([old], "dob").rstrip().endswith("| 1.0 min | - | - |")
+
+
 def test_screen_levers_quick_writes_a_row_per_run_a_table_and_resumes_from_disk(tmp_path):
     import os
     import subprocess
