@@ -20,7 +20,7 @@ from quadwind_trl.keys import BASE_STATE_CHANNELS, OBSERVATION_CHANNELS, OBSERVA
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.rl.cli import build_parser, run, with_base_controller
 from quadwind_trl.rl.config import PPOConfig
-from quadwind_trl.rl.envs import RLEnvSpec, make_env, policy_env_settings, vecnorm
+from quadwind_trl.rl.envs import RLEnvSpec, make_env, policy_env_settings, vecnorm, vecnorm_state_dict
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.envs import EnvFactory
 from quadwind_trl.rl.policy import build_actor_critic, check_recurrent, load_policy, network_dims, spec_to_dict
@@ -218,6 +218,31 @@ def test_privileged_channels_are_the_truth_and_only_the_training_env_computes_th
     _, plain = _flight(bundle, "pd", 5)
     assert torch.equal(flown["observation"], plain["observation"])
     assert set(vecnorm(env, "privileged").in_keys) == {"privileged"}
+
+
+def test_the_critics_privileged_inputs_in_a_collected_batch_are_the_normalised_ones_now_and_next_across_resets():
+    """What GAE reads: at every step the critic's ``("next", "privileged")`` is the ``privileged``
+    the next step starts from, except where an episode ended (the next step is then a new
+    episode's first); both are the training normalisation's output, clipped."""
+    spec = replace(hover_spec(duration_s=1.0), num_envs=4, privileged_inputs=("mean_wind", "turbulence", "true_error",
+                                                                           "true_vel_error"), desync_steps=6)
+    env = EnvFactory(spec)()
+    torch.manual_seed(0)
+    actor, value = build_actor_critic(PPOConfig(hidden=(8, 8)), **network_dims(spec))
+    collector = Collector(env, actor, frames_per_batch=4 * 24, total_frames=-1, exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False)
+    batch = next(iter(collector)).reshape(4, 24)
+    collector.shutdown()
+    now, nxt = batch["privileged"], batch["next", "privileged"]
+    ended = batch["next", "done"].squeeze(-1)[:, :-1]
+    assert ended.any() and (~ended).any()  # partial resets happened in the batch
+    assert torch.equal(now[:, 1:][~ended], nxt[:, :-1][~ended])
+    assert not (now[:, 1:][ended] == nxt[:, :-1][ended]).all(-1).any()
+    assert now.abs().max() <= spec.obs_clip and nxt.abs().max() <= spec.obs_clip
+    # the statistics learn during collection from every observation the critic reads: the first
+    # reset's, each step's and each restarting row's first
+    count = vecnorm_state_dict(env, "privileged")["_extra_state"]["count.-|-.privileged"]
+    assert int(count) == 4 + 4 * 24 + int(batch["next", "done"].sum())
 
 
 def test_the_stack_holds_the_last_k_decisions_across_holds_and_resets_only_the_rows_that_restart(bundle):
