@@ -20,7 +20,7 @@ from quadwind_trl.keys import BASE_STATE_CHANNELS, OBSERVATION_CHANNELS, OBSERVA
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.rl.cli import build_parser, run, with_base_controller
 from quadwind_trl.rl.config import PPOConfig
-from quadwind_trl.rl.envs import RLEnvSpec, make_env, policy_env_settings, vecnorm
+from quadwind_trl.rl.envs import RLEnvSpec, make_env, policy_env_settings, vecnorm, vecnorm_state_dict
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.envs import EnvFactory
 from quadwind_trl.rl.policy import build_actor_critic, check_recurrent, load_policy, network_dims, spec_to_dict
@@ -220,6 +220,31 @@ def test_privileged_channels_are_the_truth_and_only_the_training_env_computes_th
     assert set(vecnorm(env, "privileged").in_keys) == {"privileged"}
 
 
+def test_the_critics_privileged_inputs_in_a_collected_batch_are_the_normalised_ones_now_and_next_across_resets():
+    """What GAE reads: at every step the critic's ``("next", "privileged")`` is the ``privileged``
+    the next step starts from, except where an episode ended (the next step is then a new
+    episode's first); both are the training normalisation's output, clipped."""
+    spec = replace(hover_spec(duration_s=1.0), num_envs=4, privileged_inputs=("mean_wind", "turbulence", "true_error",
+                                                                           "true_vel_error"), desync_steps=6)
+    env = EnvFactory(spec)()
+    torch.manual_seed(0)
+    actor, value = build_actor_critic(PPOConfig(hidden=(8, 8)), **network_dims(spec))
+    collector = Collector(env, actor, frames_per_batch=4 * 24, total_frames=-1, exploration_type=ExplorationType.RANDOM,
+                          auto_register_policy_transforms=False)
+    batch = next(iter(collector)).reshape(4, 24)
+    collector.shutdown()
+    now, nxt = batch["privileged"], batch["next", "privileged"]
+    ended = batch["next", "done"].squeeze(-1)[:, :-1]
+    assert ended.any() and (~ended).any()  # partial resets happened in the batch
+    assert torch.equal(now[:, 1:][~ended], nxt[:, :-1][~ended])
+    assert not (now[:, 1:][ended] == nxt[:, :-1][ended]).all(-1).any()
+    assert now.abs().max() <= spec.obs_clip and nxt.abs().max() <= spec.obs_clip
+    # the statistics learn during collection from every observation the critic reads: the first
+    # reset's, each step's and each restarting row's first
+    count = vecnorm_state_dict(env, "privileged")["_extra_state"]["count.-|-.privileged"]
+    assert int(count) == 4 + 4 * 24 + int(batch["next", "done"].sum())
+
+
 def test_the_stack_holds_the_last_k_decisions_across_holds_and_resets_only_the_rows_that_restart(bundle):
     k = 3
     # one frame per decision (env step), whatever the control steps held under it
@@ -358,6 +383,103 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
     assert math.isfinite(manifest["wall_time_s"])
 
 
+def test_the_privileged_critic_is_the_plain_one_reading_more_and_leaves_the_actor_and_random_stream_as_they_were():
+    cfg = PPOConfig(hidden=(16, 16), seed=3)
+    torch.manual_seed(3)
+    plain_actor, plain_value = build_actor_critic(cfg)
+    plain_next = torch.rand(8)  # what the first rollout's exploration would draw next
+    torch.manual_seed(3)
+    actor, value = build_actor_critic(cfg, privileged_dim=12)
+    assert torch.equal(torch.rand(8), plain_next)
+    assert all(torch.equal(a, b) for a, b in zip(actor.state_dict().values(), plain_actor.state_dict().values()))
+    wide, plain = value.module.mlp, plain_value.module
+    assert torch.equal(wide[0].weight[:, :OBSERVATION_DIM], plain[0].weight) and torch.equal(wide[0].bias, plain[0].bias)
+    assert all(torch.equal(a, b) for a, b in zip(wide[1:].parameters(), plain[1:].parameters()))
+    # the privileged columns: orthogonal with the layer's gain, drawn from their own seeded stream
+    extra = wide[0].weight[:, OBSERVATION_DIM:]
+    assert torch.allclose(extra.T @ extra, 2.0 * torch.eye(12), atol=1e-5)
+    torch.manual_seed(99)
+    assert torch.equal(build_actor_critic(cfg, privileged_dim=12)[1].module.mlp[0].weight[:, OBSERVATION_DIM:], extra)
+
+
+# --- value normalisation ---------------------------------------------------------------------------
+
+def test_value_norm_standardises_the_critics_targets_and_keeps_its_values_when_the_statistics_move():
+    from quadwind_trl.rl.update import PPOUpdate
+    from quadwind_trl.rl.value_norm import NormalizedValue
+
+    cfg = PPOConfig(hidden=(16, 16), value_norm=True)
+    torch.manual_seed(0)
+    plain_actor, plain_value = build_actor_critic(replace(cfg, value_norm=False), privileged_dim=3)
+    torch.manual_seed(0)
+    actor, value = build_actor_critic(cfg, privileged_dim=3)
+    # the same draws: the actor, its rollouts' random stream and the critic's weights are the plain run's
+    assert all(torch.equal(a, b) for a, b in zip(actor.state_dict().values(), plain_actor.state_dict().values()))
+    assert all(torch.equal(a, b) for a, b in zip(value.parameters(), plain_value.parameters()))
+    head = next(m for m in value.modules() if isinstance(m, NormalizedValue))
+    td = TensorDict({"observation": torch.randn(64, OBSERVATION_DIM), "privileged": torch.randn(64, 3)}, [64])
+    learner = PPOUpdate(actor, value, cfg)
+    targets = -35.0 + 20.0 * torch.randn(64, 1)  # return units: about the horizontal task's
+    before = value(td.clone())["state_value"]
+    head.update(targets)
+    assert torch.allclose(head.norm.mean, targets.mean(0), rtol=1e-6)
+    assert torch.allclose(head.norm.scale(), targets.std(0, unbiased=False), rtol=1e-5)
+    # PopArt's output preservation: the new statistics move no prediction (GAE's values stay the critic's)
+    assert torch.allclose(value(td.clone())["state_value"], before, rtol=1e-5, atol=1e-5)
+    # the critic's network outputs standardised values; the critic gives them in return units
+    raw = head.net(td["observation"], td["privileged"])
+    assert torch.allclose(value(td.clone())["state_value"], head.norm.mean + head.norm.scale() * raw, rtol=1e-6)
+    # the loss compares standardised prediction and target, and trains the critic the GAE reads
+    td["value_target"], td["advantage"] = targets + 5.0, torch.randn(64, 1)
+    loss = learner.loss.loss_critic(td)[0].mean()
+    expected = cfg.critic_coeff * ((head.norm.normalize(td["value_target"]) - raw) ** 2).mean()
+    assert torch.allclose(loss, expected, rtol=1e-5)
+    out_weight = head.net.mlp[-1].weight.clone()
+    learner.optim.zero_grad()
+    loss.backward()
+    learner.optim.step()
+    assert not torch.equal(out_weight, head.net.mlp[-1].weight)
+    with pytest.raises(ValueError, match=r"PPOConfig\.value_norm='yes'; allowed: True or False"):
+        PPOConfig(value_norm="yes").validate()
+
+
+def test_value_norm_is_recorded_checkpointed_continued_on_resume_and_another_setting_is_refused(tmp_path):
+    spec = hover_spec(duration_s=1.0)
+    cfg = PPOConfig(total_frames=2 * 32, num_envs=4, steps_per_env=8, epochs=1, minibatch=16, hidden=(32, 32),
+                    value_norm=True, eval_every_frames=0, checkpoint_every_frames=1)
+    out = tmp_path / "run"
+    PPOTrainer(spec, cfg, out, progress=False).train()
+    latest = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)
+    assert latest["ppo_config"]["value_norm"] is True
+    assert float(latest["value"]["module.norm.count"]) == 2 * 32 and float(latest["value"]["module.norm.m2"]) > 0
+    assert json.loads((out / "policy.json").read_text())["ppo_config"]["value_norm"] is True
+    assert json.loads((out / "config.json").read_text())["ppo_config"]["value_norm"] is True
+    std = (out / "logs" / "ppo" / "scalars" / "train" / "value_target_std.csv").read_text().split()
+    assert len(std) == 2 and all(float(r.split(",")[1]) > 0 for r in std)
+    load_policy(out / "policy.pt")  # the actor is rebuilt as any other
+    with pytest.raises(ResumeMismatch, match=r"PPOConfig\.value_norm=False but the checkpoint's run used True"):
+        PPOTrainer(spec, replace(cfg, value_norm=False, total_frames=3 * 32), out, progress=False).train(resume=True)
+    PPOTrainer(spec, replace(cfg, total_frames=3 * 32), out, progress=False).train(resume=True)
+    latest = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)
+    assert float(latest["value"]["module.norm.count"]) == 3 * 32  # continued, not restarted
+
+
+@pytest.mark.parametrize("lever", ["value_norm", "oracle_wind"])
+def test_the_value_norm_and_oracle_wind_catalogue_entries_train_a_quick_run_on_the_observer(tmp_path, lever):
+    from quadwind_trl.rl.screening import LEVERS
+
+    flags = LEVERS["horizontal"][lever]
+    # the oracle reads the true mean wind and runs no estimator; the other trains on the untrained one
+    estimator = () if lever == "oracle_wind" else ("--untrained-estimator",)
+    args = build_parser("horizontal", "").parse_args([*flags, *estimator, "--quick", "--base-controller", "dob",
+                                                      "--no-progress", "--out", str(tmp_path / "run")])
+    manifest = run("horizontal", args)
+    assert manifest["frames"] == 4 * 8 * 32 and manifest["env_spec"]["env_config"]["controller"]["disturbance"] == "observer"
+    assert manifest["ppo_config"]["value_norm"] is (lever == "value_norm")
+    assert manifest["env_spec"]["wind_input"] == ("truth" if lever == "oracle_wind" else "estimate")
+    assert math.isfinite(manifest["metrics"]["rmse"])
+
+
 # --- the screening recipe -------------------------------------------------------------------------
 
 def test_lever_settings_are_catalogue_names_or_named_recipe_flags():
@@ -379,6 +501,25 @@ def test_screen_plan_refuses_more_validation_episodes_than_the_sweep_has_before_
     assert ScreenPlan(val_episodes=n).val_episodes == n
     with pytest.raises(ValueError, match=rf"ScreenPlan.val_episodes={n + 1}; allowed: 1 to {n} \(the horizontal"):
         ScreenPlan(val_episodes=n + 1)
+
+
+def test_a_screen_row_says_when_one_episode_decides_the_mean_gain():
+    from quadwind_trl.rl.screening import ScreenRow, _gain, table
+
+    base = torch.ones(5)
+    policy = torch.tensor([0.9, 0.9, 0.9, 0.95, 5.0])  # four small wins, one episode lost by far
+    xy = _gain(base, policy, resamples=200)
+    assert math.isclose(xy["gain_pct"], 100 * (1 - 8.65 / 5), rel_tol=1e-6)  # the mean: -73 %
+    assert math.isclose(xy["median_episode_gain_pct"], 10.0, rel_tol=1e-6)  # the typical episode: +10 %
+    assert xy["worst_episode"] == {"index": 4, "base_m": 1.0, "policy_m": 5.0}
+    row = ScreenRow(lever="x", flags=[], seed=0, regime="horizontal", base="dob", frames=1, train_wall_s=1.0, wall_s=60.0,
+                    policy="p", git_commit=None, validation={"xy": xy, "z": _gain(base, base, 200),
+                                                              "crashed": {"base": 0, "policy": 0}})
+    assert "| +10.0 % | 4: 1.000 -> 5.000 m |" in table([row], "dob")
+    # a row written before screens recorded the tail still makes a table
+    old = replace(row, validation={**row.validation, "xy": {k: v for k, v in xy.items() if k not in
+                                                            ("median_episode_gain_pct", "worst_episode")}})
+    assert table([old], "dob").rstrip().endswith("| 1.0 min | - | - |")
 
 
 def test_screen_levers_quick_writes_a_row_per_run_a_table_and_resumes_from_disk(tmp_path):

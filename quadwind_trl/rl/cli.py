@@ -56,6 +56,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--reward-scaling", default=None, choices=list(REWARD_SCALINGS),
                    help="none (the paper, default) or return_std: rewards divided by the running std of the discounted "
                         "return in the PPO update (a recipe candidate; evaluation is unchanged)")
+    p.add_argument("--value-norm", action="store_true", default=None,
+                   help="the critic learns its targets standardised by their running mean and std, rescaled to returns "
+                        "for GAE (PopArt-style; default: off, the paper's critic on the return scale)")
     p.add_argument("--reward-w-z", type=reward_weight, default=None, metavar="BETA",
                    help=f"the reward's height-error weight beta (default the regime's: {REWARD_W_Z[regime]:g}; the paper's: "
                         f"{PAPER_REWARD_W_Z[regime]:g}; regimes.REWARD_W_Z says why they differ); recorded in the "
@@ -177,7 +180,8 @@ def recipe_ppo_config(regime: str, args: argparse.Namespace, base: PPOConfig | N
     overrides = {"seed": args.seed, "threads": args.threads}
     for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
                       ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
-                      ("reward_scaling", "reward_scaling"), ("collect_workers", "collect_workers"),
+                      ("reward_scaling", "reward_scaling"), ("value_norm", "value_norm"),
+                      ("collect_workers", "collect_workers"),
                       ("collector", "collector"), ("num_collectors", "num_collectors"), ("address", "ray_address"),
                       ("background_eval", "background_eval")):
         if getattr(args, arg) is not None:

@@ -15,6 +15,9 @@ learning rate               3e-4, constant         3e-4 (Adam, eps 1e-5 as SB3) 
 reward scaling              (not stated)           none; reward_scaling "return_std" divides by
                                                    the running std of the discounted return
                                                    (a recipe candidate, rl/reward_scale.py)
+value normalisation         (SB3: none)            none; value_norm=True: the critic learns its
+                                                   targets standardised by their running mean
+                                                   and std, PopArt-style (rl/value_norm.py)
 samples per batch           2048 steps x n_envs    num_envs x steps_per_env = 64 x 256 = 16384
                                                    (= 8 envs x 2048 steps)
 minibatch / epochs          512 / 10               512 / 10 (32 minibatches per epoch)
@@ -60,6 +63,9 @@ class PPOConfig:
     lr: float = 3e-4  # paper
     lr_schedule: str = "linear"  # one of LR_SCHEDULES; the paper: "constant" (docs/rl.md, "Choosing the training recipe")
     reward_scaling: str = "none"  # paper; one of REWARD_SCALINGS
+    # the critic predicts its targets standardised by their running mean / std, rescaled to returns
+    # for GAE (PopArt-style, rl/value_norm.py); False: the paper's critic on the return scale
+    value_norm: bool = False
     clip_epsilon: float = 0.2  # paper
     entropy_coeff: float = 0.005  # paper
     critic_coeff: float = 0.5  # paper
@@ -131,6 +137,8 @@ class PPOConfig:
             raise ValueError(f"PPOConfig.lr_schedule={self.lr_schedule!r}; allowed: {list(LR_SCHEDULES)}")
         if self.reward_scaling not in REWARD_SCALINGS:
             raise ValueError(f"PPOConfig.reward_scaling={self.reward_scaling!r}; allowed: {list(REWARD_SCALINGS)}")
+        if not isinstance(self.value_norm, bool):
+            raise ValueError(f"PPOConfig.value_norm={self.value_norm!r}; allowed: True or False")
         if not 0 < self.lr:
             raise ValueError(f"PPOConfig.lr={self.lr} must be > 0")
         if not 0 < self.init_scale:

@@ -27,6 +27,7 @@ from ..manifest import repo_relative
 from ..validation import load_checkpoint
 from .config import ACTIVATIONS, PPOConfig
 from .envs import RLEnvSpec
+from .value_norm import NormalizedValue
 
 CHECKPOINT_FORMAT = 1
 # what a recurrent actor's GRU hands its MLP
@@ -55,6 +56,30 @@ class _ConcatInputs(nn.Module):
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         return self.mlp(torch.cat(inputs, -1))
+
+
+# the seed offset of the generator that draws an asymmetric critic's privileged-input weights
+# (any fixed value: its stream must only differ from the run's, which is seeded with cfg.seed)
+PRIVILEGED_INIT_OFFSET = 104_729
+
+
+def _with_inputs(mlp: nn.Sequential, extra: int, seed: int) -> nn.Sequential:
+    """``mlp`` reading ``extra`` more inputs after its own. Their first-layer weights are drawn
+    (orthogonal, gain sqrt(2), as the layer's) from a generator of their own, seeded ``seed`` +
+    :data:`PRIVILEGED_INIT_OFFSET`, and the layer is rebuilt without drawing: the global random
+    stream, from which the rollouts draw their exploration, is then where the plain critic leaves
+    it. With and without the privileged lever a run's actor, its first rollouts and the critic's
+    weights on the observation are the same, so a screen compares the lever with the plain
+    residual seed by seed, on the critic alone."""
+    first = mlp[0]
+    columns = torch.empty(first.out_features, extra)
+    nn.init.orthogonal_(columns, gain=math.sqrt(2.0), generator=torch.Generator().manual_seed(seed + PRIVILEGED_INIT_OFFSET))
+    wide = nn.utils.skip_init(nn.Linear, first.in_features + extra, first.out_features)
+    with torch.no_grad():
+        wide.weight.copy_(torch.cat((first.weight, columns), -1))
+        wide.bias.copy_(first.bias)
+    mlp[0] = wide
+    return mlp
 
 
 def network_dims(env_spec: RLEnvSpec | Mapping) -> dict[str, int]:
@@ -91,9 +116,11 @@ def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_di
                        privileged_dim: int = 0, recurrent_hidden: int = 0) -> tuple[ProbabilisticActor, ValueOperator]:
     """TanhNormal actor (``observation`` -> ``action``, ``action_log_prob``) and value critic
     (``observation``, and with ``privileged_dim`` > 0 also ``privileged``: the asymmetric critic,
-    whose extra inputs the actor never reads). With ``recurrent_hidden`` > 0 the actor reads its
-    observations through a GRU of that size (TorchRL's ``GRUModule``: hidden state
-    ``recurrent_state``, restarted at 0 where ``is_init``) before its MLP."""
+    whose extra inputs the actor never reads; with ``cfg.value_norm`` its network's output is
+    standardised and rescaled to returns by :class:`~quadwind_trl.rl.value_norm.NormalizedValue`).
+    With ``recurrent_hidden`` > 0 the actor reads its observations through a GRU of that size
+    (TorchRL's ``GRUModule``: hidden state ``recurrent_state``, restarted at 0 where ``is_init``)
+    before its MLP."""
     act = ACTIVATIONS[cfg.activation]
     sizes = (obs_dim, *cfg.hidden)
     scale = AddStateIndependentNormalScale(action_dim, scale_mapping="exp", init_value=math.log(cfg.init_scale))
@@ -114,12 +141,10 @@ def build_actor_critic(cfg: PPOConfig, obs_dim: int = OBSERVATION_DIM, action_di
         return_log_prob=True,
         default_interaction_type=ExplorationType.DETERMINISTIC,
     )
-    if privileged_dim:
-        value = ValueOperator(_ConcatInputs(_mlp((obs_dim + privileged_dim, *cfg.hidden, 1), act, 1.0)),
-                              in_keys=[OBSERVATION_KEY, PRIVILEGED_KEY])
-    else:  # the paper's critic, with the parameter names of every policy file before the asymmetric one
-        value = ValueOperator(_mlp((*sizes, 1), act, 1.0), in_keys=[OBSERVATION_KEY])
-    return actor, value
+    critic, in_keys = _mlp((*sizes, 1), act, 1.0), [OBSERVATION_KEY]  # the paper's critic
+    if privileged_dim:  # the same network, reading the privileged channels after the observation
+        critic, in_keys = _ConcatInputs(_with_inputs(critic, privileged_dim, cfg.seed)), [OBSERVATION_KEY, PRIVILEGED_KEY]
+    return actor, ValueOperator(NormalizedValue(critic) if cfg.value_norm else critic, in_keys=in_keys)
 
 
 def action_scale(actor: ProbabilisticActor) -> float:

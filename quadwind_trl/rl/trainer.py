@@ -44,7 +44,7 @@ from .update import PPOUpdate
 RESUMABLE_CHANGES = ("total_frames", "eval_every_frames", "checkpoint_every_frames", "threads", "update_threads",
                      "collect_workers", "collector", "num_collectors", "ray_address", "background_eval")
 # what runs saved before a PPOConfig field existed used (their checkpoints lack it)
-SAVED_BEFORE_FIELD = {"lr_schedule": "constant", "reward_scaling": "none"}
+SAVED_BEFORE_FIELD = {"lr_schedule": "constant", "reward_scaling": "none", "value_norm": False}
 
 
 class ResumeMismatch(ValueError):

@@ -19,6 +19,7 @@ from ..keys import RECURRENT_KEY
 from ..manifest import CheckpointParts
 from .config import PPOConfig
 from .reward_scale import ReturnScale
+from .value_norm import NormalizedCriticLoss, normalized_value
 
 # what the loss reads from a collected batch (the rest, e.g. the flight record, is dropped)
 BATCH_KEYS = ("observation", "action", "action_log_prob", ("next", "observation"), ("next", "reward"),
@@ -36,10 +37,13 @@ class PPOUpdate(CheckpointParts):
     def __init__(self, actor: ProbabilisticActor, value: ValueOperator, cfg: PPOConfig):
         self.cfg = cfg
         self.actor, self.value = actor, value
-        self.loss = ClipPPOLoss(
+        # a critic with value normalisation (cfg.value_norm) learns standardised targets
+        self.value_head = normalized_value(value)
+        loss_class, head = (ClipPPOLoss, {}) if self.value_head is None else (NormalizedCriticLoss, {"value_head": self.value_head})
+        self.loss = loss_class(
             actor, value,
             clip_epsilon=cfg.clip_epsilon, entropy_coeff=cfg.entropy_coeff, critic_coeff=cfg.critic_coeff,
-            loss_critic_type=cfg.loss_critic_type, normalize_advantage=cfg.normalize_advantage,
+            loss_critic_type=cfg.loss_critic_type, normalize_advantage=cfg.normalize_advantage, **head,
         )  # fmt: skip
         self.gae = GAE(gamma=cfg.gamma, lmbda=cfg.lmbda, value_network=value, average_gae=False)
         # the critic's inputs beside the actor's (an asymmetric critic's privileged ones), now and next
@@ -74,6 +78,8 @@ class PPOUpdate(CheckpointParts):
             if self.return_scale is not None:
                 self.return_scale(batch)  # the select's leaves are the collector's: set, not written in place
             self.gae(batch)
+            if self.value_head is not None:  # this batch's targets join the statistics; the critic's values stay
+                self.value_head.update(batch["value_target"])
         if self.recurrent:  # minibatches of whole rows [rows, T], run as sequences (check_recurrent: whole rows fit)
             units, per_minibatch, mode = batch, cfg.minibatch // batch.shape[-1], set_recurrent_mode(True)
         else:  # minibatches of single steps
@@ -97,5 +103,8 @@ class PPOUpdate(CheckpointParts):
         out = {k: float(v) / steps for k, v in sums.items()}
         if self.return_scale is not None:
             out["return_std"] = float(self.return_scale.std)
+        if self.value_head is not None:  # the statistics the critic's targets are standardised by
+            out["value_target_mean"] = float(self.value_head.norm.mean)
+            out["value_target_std"] = float(self.value_head.norm.scale())
         return out
 
