@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, TransformedEnv
 
 from ..envs.runner import FlightResults
 from .config import PPOConfig
@@ -35,16 +35,28 @@ from .paired import Policy, fly_paired, paired_metrics
 _CLOSE_TIMEOUT_S = 120.0
 
 
-def evaluate_against_pd(env: EnvBase, actor: Policy, vecnorm_state: dict, scenarios: TensorDictBase,
+def pd_env(env: TransformedEnv) -> EnvBase:
+    """The env PD flies in beside a policy flying ``env``: the simulator alone (``env.base_env``)
+    unless its base law reads the wind estimate. PD's action is zero whatever the observation, so
+    the policy's input pipeline (the estimator's ticks, the observation, its normalisation) would
+    change nothing it flies, and cost a fifth to a third of its flights' CPU time
+    (docs/benchmarks.md); the simulator is the same object, so PD's episodes are the policy's
+    worlds to the bit (``tests/test_ppo.py``)."""
+    base = env.base_env
+    return env if base.config.controller.needs_wind else base
+
+
+def evaluate_against_pd(env: TransformedEnv, actor: Policy, vecnorm_state: dict, scenarios: TensorDictBase,
                         pd_eval: dict | None) -> tuple[dict[str, float], dict]:
     """``(metrics, pd_eval)``: :func:`~quadwind_trl.rl.paired.paired_metrics` of ``actor`` against
     PD on ``scenarios`` in ``env`` under the normalisation ``vecnorm_state`` (frozen), and PD's
-    per-episode results (``pd_eval``, flown here when None), plus ``eval_s``, the seconds it took."""
+    per-episode results (``pd_eval``, flown here, in :func:`pd_env`, when None), plus ``eval_s``,
+    the seconds it took."""
     load_vecnorm_state(env, vecnorm_state)
     t0 = time.perf_counter()
     flights = {"policy": (env, actor)}
     if pd_eval is None:
-        flights = {"pd": (env, None), **flights}
+        flights = {"pd": (pd_env(env), None), **flights}
     flown = fly_paired(flights, scenarios)
     if pd_eval is None:
         pd = flown["pd"]
