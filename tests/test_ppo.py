@@ -138,29 +138,6 @@ def test_background_evaluation_records_what_the_training_process_would_across_a_
     assert logs[True] == logs[False] and len(logs[True].splitlines()) == 3
 
 
-def test_the_evaluation_flies_pd_on_the_simulator_alone_and_its_flights_do_not_change():
-    """PD's evaluation flights skip the policy's input pipeline (the estimator's ticks, the
-    observation, its normalisation): they are those flown through the whole stack to the bit. A
-    base law that reads the wind estimate keeps the stack: its estimate changes what it flies."""
-    from quadwind_trl.regimes import classical_controller
-    from quadwind_trl.rl.envs import EnvFactory
-    from quadwind_trl.rl.evaluator import pd_env
-    from quadwind_trl.rl.paired import fly_paired
-
-    sc = _two_hover_validation_episodes()
-    env = EnvFactory(hover_spec())(num_envs=2, seed=1, desync_steps=0)
-    assert pd_env(env) is env.base_env
-    bare, full = (fly_paired({"pd": (e, None)}, sc)["pd"] for e in (pd_env(env), env))
-    for key in ("rmse_xy", "rmse_z", "crashed", "nav_rmse_xy", "nav_rmse_z"):
-        assert torch.equal(getattr(bare, key), getattr(full, key)), key
-    assert float(full.rmse_xy.max()) > 0.0
-    spec = hover_spec()
-    feed_forward = replace(spec.config, controller=replace(spec.config.controller,
-                                                            **classical_controller("horizontal", "pd_ff")[0]))
-    wind_reading = EnvFactory(replace(spec, config=feed_forward))(num_envs=2, seed=1, desync_steps=0)
-    assert pd_env(wind_reading) is wind_reading
-
-
 def test_an_evaluation_process_killed_from_outside_is_reported_not_waited_for():
     from quadwind_trl.rl.envs import EnvFactory
     from quadwind_trl.rl.evaluator import BackgroundEvaluator, to_bytes
