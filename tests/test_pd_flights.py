@@ -108,3 +108,14 @@ def test_a_base_law_that_reads_the_wind_estimate_flies_every_time(flights):
     first, second = pd_evaluation(env, spec, sc), pd_evaluation(env, spec, sc)
     assert len(flights) == 2 and _same(first, second)
     assert not (cache_dir() / "pd_flights").exists()
+
+
+def test_a_cache_that_cannot_be_written_costs_only_the_next_flights(flights, monkeypatch, tmp_path):
+    blocked = tmp_path / "a_file"
+    blocked.write_text("not a folder")
+    monkeypatch.setenv(pd_flights.CACHE_DIR_VARIABLE, str(blocked))
+    sc = _two_hover_validation_episodes()
+    spec = hover_spec()
+    env = _eval_env(spec)
+    first, second = pd_evaluation(env, spec, sc), pd_evaluation(env, spec, sc)
+    assert len(flights) == 2 and _same(first, second)

@@ -13,7 +13,7 @@ threads), the env config, the compiled or eager step, the device, the batch size
 scenarios. Any change to them is another name, so a stale entry is never looked up. Entries live
 under :func:`cache_dir` and are written through a temporary file and a rename, so two processes
 may write one at once; one that cannot be read, or does not fit its scenarios, is flown again and
-replaced, never trusted. A base law that reads the wind estimate flies every time: its flights
+replaced, never trusted; a cache folder that cannot be written is done without. A base law that reads the wind estimate flies every time: its flights
 depend on the estimator too.
 """
 from __future__ import annotations
@@ -71,8 +71,11 @@ def pd_evaluation(env: TransformedEnv, spec: RLEnvSpec, scenarios: TensorDictBas
     flown = fly_paired({"pd": (pd, None)}, scenarios)["pd"]
     result = {key: getattr(flown, key) for key in PD_EVAL_KEYS}
     if path is not None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        save_atomic(result, path)
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            save_atomic(result, path)
+        except OSError:  # a cache that cannot be written (read-only, full) only costs the next run PD's flights
+            pass
     return result
 
 
