@@ -24,7 +24,9 @@ every 262,144 frames, flown in a second process beside training as the recipe do
 "Collection, the rest" is the collector's time the three collection parts leave: the transforms
 (episode control, the estimator's feature ring and EMA, the observation, the normalisation), the
 TorchRL collector's bookkeeping. Each evaluation's own duration (``eval_s``, measured where it
-flies; the first includes the eval env's compilation and PD's flights) is printed too. One
+flies; the first includes the eval env's compilation and PD's flights, unless an earlier run on
+this machine and code kept them: ``rl/pd_flights.py``; the report says which) is printed too.
+``QUADWIND_TRL_CACHE_DIR=$(mktemp -d)`` profiles a first run, which flies PD. One
 table, each batch's collection and update seconds, then one parseable ``profile`` line per phase.
 The run directory is a scratch folder.
 """
@@ -50,6 +52,7 @@ from quadwind_trl.rl.cli import DEFAULT_BACKGROUND_EVAL, DEFAULT_EVAL_EVERY
 from quadwind_trl.rl.config import PPOConfig
 from quadwind_trl.rl.envs import RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from quadwind_trl.rl.paired import validation_scenarios
+from quadwind_trl.rl.pd_flights import cache_dir, entry_path
 from quadwind_trl.rl.trainer import PPOTrainer
 from quadwind_trl.rl.update import PPOUpdate
 
@@ -119,15 +122,17 @@ def profile(frames: int, seed: int, background_eval: bool) -> dict:
         history.append(metrics)
         timer.phase = "collection"  # the collector's next batch
 
+    scenarios = validation_scenarios(REGIME)
     with tempfile.TemporaryDirectory() as tmp:
-        trainer = PPOTrainer(spec, cfg, Path(tmp) / "run", eval_scenarios=validation_scenarios(REGIME), progress=False,
+        trainer = PPOTrainer(spec, cfg, Path(tmp) / "run", eval_scenarios=scenarios, progress=False,
                              estimator_bundle=bundle, on_iteration=on_iteration, command="bench/train_profile.py")
+        pd_kept = entry_path(trainer.eval_spec, scenarios.batch_size[0], scenarios).exists()
         timer.phase = "collection"
         t0 = time.perf_counter()
         result = trainer.train()
         wall = time.perf_counter() - t0
     return {"wall_s": wall, "timer": timer, "history": history, "evals": result.evals, "frames": result.frames,
-            "spec": spec, "cfg": cfg}
+            "spec": spec, "cfg": cfg, "pd_kept": pd_kept}
 
 
 def report(run: dict) -> None:
@@ -158,6 +163,8 @@ def report(run: dict) -> None:
     rows.append(("wall time of train()", wall))
     print(f"\nframes {run['frames']:,} in {len(history)} batches; evaluations {len(run['evals'])}; "
           f"background evaluation: {run['cfg'].background_eval}; load {load_1min():.2f}")
+    print("PD's validation flights: " + ("kept by an earlier run, read from the cache" if run["pd_kept"] else
+                                        f"flown by this run (none kept in {cache_dir() / 'pd_flights'})"))
     print(f"| phase | s | share of wall |\n|---|---|---|")
     for name, s in rows:
         print(f"| {name} | {s:.1f} | {100 * s / wall:.1f} % |")

@@ -11,6 +11,13 @@ from quadwind_trl.config import ControllerConfig, EnvConfig, SensorConfig, Traje
 torch.set_num_threads(1)
 
 
+@pytest.fixture(autouse=True)
+def own_cache(tmp_path_factory, monkeypatch):
+    """Each test keeps what the library caches (PD's evaluation flights, ``rl.pd_flights``) in a
+    folder of its own: no test reads what another test, or the user, flew."""
+    monkeypatch.setenv("QUADWIND_TRL_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+
+
 def quiet_config(**overrides) -> EnvConfig:
     """Truth feedback, no turbulence, no sensor noise: deterministic physics only."""
     cfg = EnvConfig(

@@ -2,7 +2,8 @@
 
 :func:`evaluate_against_pd` is the evaluation itself: the deterministic policy under the training
 normalisation, frozen, against PD on the same replayed episodes (PD flown once and reused: its
-flights never change). :class:`BackgroundEvaluator` runs that same function in a child process
+flights never change; :mod:`~quadwind_trl.rl.pd_flights` keeps them for later runs too).
+:class:`BackgroundEvaluator` runs that same function in a child process
 (``PPOConfig.background_eval``): training goes on while a snapshot of the policy flies, so on a
 machine whose collection leaves a core idle the evaluations stop adding to the run's wall time.
 The child builds its eval env from the trainer's :class:`~quadwind_trl.rl.envs.EnvFactory` with
@@ -24,33 +25,32 @@ from dataclasses import dataclass
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase
+from torchrl.envs import TransformedEnv
 
 from ..envs.runner import FlightResults
 from .config import PPOConfig
-from .envs import EnvFactory, load_vecnorm_state
+from .envs import EnvFactory, RLEnvSpec, load_vecnorm_state
 from .paired import Policy, fly_paired, paired_metrics
+from .pd_flights import pd_evaluation
 
 # how long the parent waits for an idle child to exit after asking it to, s (then it is terminated)
 _CLOSE_TIMEOUT_S = 120.0
 
 
-def evaluate_against_pd(env: EnvBase, actor: Policy, vecnorm_state: dict, scenarios: TensorDictBase,
-                        pd_eval: dict | None) -> tuple[dict[str, float], dict]:
+def evaluate_against_pd(env: TransformedEnv, spec: RLEnvSpec, actor: Policy, vecnorm_state: dict,
+                        scenarios: TensorDictBase, pd_eval: dict | None) -> tuple[dict[str, float], dict]:
     """``(metrics, pd_eval)``: :func:`~quadwind_trl.rl.paired.paired_metrics` of ``actor`` against
-    PD on ``scenarios`` in ``env`` under the normalisation ``vecnorm_state`` (frozen), and PD's
-    per-episode results (``pd_eval``, flown here when None), plus ``eval_s``, the seconds it took."""
+    PD on ``scenarios`` in ``env`` (built from ``spec``) under the normalisation ``vecnorm_state``
+    (frozen), and PD's per-episode results (``pd_eval``; when None, from
+    :func:`~quadwind_trl.rl.pd_flights.pd_evaluation`: kept from an earlier run, or flown here),
+    plus ``eval_s``, the seconds it took."""
     load_vecnorm_state(env, vecnorm_state)
     t0 = time.perf_counter()
-    flights = {"policy": (env, actor)}
     if pd_eval is None:
-        flights = {"pd": (env, None), **flights}
-    flown = fly_paired(flights, scenarios)
-    if pd_eval is None:
-        pd = flown["pd"]
-        pd_eval = {"index": pd.index, "rmse_xy": pd.rmse_xy, "rmse_z": pd.rmse_z, "crashed": pd.crashed}
+        pd_eval = pd_evaluation(env, spec, scenarios)
+    policy = fly_paired({"policy": (env, actor)}, scenarios)["policy"]
     pd = FlightResults(**pd_eval, log=TensorDict({}, batch_size=[pd_eval["index"].numel(), 0]))
-    metrics = paired_metrics(flown["policy"], pd)
+    metrics = paired_metrics(policy, pd)
     metrics["eval_s"] = time.perf_counter() - t0
     return metrics, pd_eval
 
@@ -89,7 +89,8 @@ def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed:
             job = from_bytes(job)
             policy_file = from_bytes(job["policy_file"])
             actor.load_state_dict(policy_file["policy"])
-            metrics, pd_eval = evaluate_against_pd(env, actor, policy_file["vecnorm"], scenarios, job["pd_eval"] or pd_eval)
+            metrics, pd_eval = evaluate_against_pd(env, factory.spec, actor, policy_file["vecnorm"], scenarios,
+                                                  job["pd_eval"] or pd_eval)
             results.put(("done", to_bytes({"frames": job["frames"], "metrics": metrics, "pd_eval": pd_eval})))
         env.close()
     except BaseException:  # the parent raises it, with this traceback

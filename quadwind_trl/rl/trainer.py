@@ -190,6 +190,8 @@ class PPOTrainer:
         if env_spec.num_envs != cfg.num_envs:
             env_spec = replace(env_spec, num_envs=cfg.num_envs)
         self.spec = env_spec
+        # the evaluations fly the policy as every later flight does: without the critic's privileged inputs
+        self.eval_spec = replace(env_spec, privileged_inputs=())
         self.out_dir = Path(out_dir)
         self.eval_scenarios = eval_scenarios
         self.curriculum = curriculum
@@ -313,8 +315,7 @@ class PPOTrainer:
         if self.curriculum is not None:
             self._apply_stage(env, progress.stage, truncate=False)
         eval_env = evaluator = None
-        # the evaluations fly the policy as every later flight does: without the critic's privileged inputs
-        eval_factory = EnvFactory(replace(spec, privileged_inputs=()), bundle=self.factory.estimator())
+        eval_factory = EnvFactory(self.eval_spec, bundle=self.factory.estimator())
         if self.eval_scenarios is not None and cfg.background_eval:
             evaluator = BackgroundEvaluator(eval_factory, self.eval_scenarios, cfg, seed=spec.seed + 1)
         elif self.eval_scenarios is not None:
@@ -406,7 +407,8 @@ class PPOTrainer:
                 with torch.random.fork_rng():  # building it draws initial weights: not from the run's stream
                     actor = build_actor_critic(self.cfg, **network_dims(self.spec))[0].to(self.spec.device)
                 actor.load_state_dict(snapshot["policy"])
-            metrics, p.pd_eval = evaluate_against_pd(s.eval_env, actor, snapshot["vecnorm"], self.eval_scenarios, p.pd_eval)
+            metrics, p.pd_eval = evaluate_against_pd(s.eval_env, self.eval_spec, actor, snapshot["vecnorm"], self.eval_scenarios,
+                                                     p.pd_eval)
             self._record_evaluation(s, frames, iteration, policy, metrics)
         else:
             s.in_flight[frames] = (iteration, policy)
