@@ -52,7 +52,8 @@ from quadwind_trl.rl.cli import DEFAULT_BACKGROUND_EVAL, DEFAULT_EVAL_EVERY
 from quadwind_trl.rl.config import PPOConfig
 from quadwind_trl.rl.envs import RLEnvSpec, recipe_estimate_every_s, validated_tau_s
 from quadwind_trl.rl.paired import validation_scenarios
-from quadwind_trl.rl.pd_flights import cache_dir, entry_path
+from quadwind_trl.cache import cache_dir
+from quadwind_trl.rl.pd_flights import entry_path
 from quadwind_trl.rl.trainer import PPOTrainer
 from quadwind_trl.rl.update import PPOUpdate
 

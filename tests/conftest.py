@@ -3,19 +3,30 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import os
+
 import pytest
 import torch
 
+from quadwind_trl.cache import CACHE_DIR_VARIABLE, cache_dir
+from quadwind_trl.envs.control_step import COMPILE_CACHE_ENV
 from quadwind_trl.config import ControllerConfig, EnvConfig, SensorConfig, TrajectoryConfig, TurbulenceConfig, WindProfileConfig
 
 torch.set_num_threads(1)
 
 
+# the user's compile cache, as it is before any test moves the cache root
+USER_COMPILE_CACHE = os.environ.get(COMPILE_CACHE_ENV) or str(cache_dir() / "compile")
+
+
 @pytest.fixture(autouse=True)
 def own_cache(tmp_path_factory, monkeypatch):
     """Each test keeps what the library caches (PD's evaluation flights, ``rl.pd_flights``) in a
-    folder of its own: no test reads what another test, or the user, flew."""
-    monkeypatch.setenv("QUADWIND_TRL_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+    folder of its own: no test reads what another test, or the user, flew. Compiled steps keep
+    the user's compile cache: a compilation per test would cost minutes, and its entries are
+    keyed by graph, processor and torch version, so sharing them cannot change what a test flies."""
+    monkeypatch.setenv(CACHE_DIR_VARIABLE, str(tmp_path_factory.mktemp("cache")))
+    monkeypatch.setenv(COMPILE_CACHE_ENV, USER_COMPILE_CACHE)
 
 
 def quiet_config(**overrides) -> EnvConfig:

@@ -576,15 +576,20 @@ def test_static_compiled_step_matches_eager():
 
 
 def test_the_compile_cache_is_the_users_and_one_folder_per_processor(tmp_path, monkeypatch):
-    """The compile cache lives in the user's cache folder (XDG_CACHE_HOME), or where the library's
-    variable says, in a folder of the processor, kernel path and torch version: inductor's keys
-    leave the processor out, so a cache shared with another one must not be looked at."""
+    """The compile cache lives under the library's cache root (the user's cache folder,
+    XDG_CACHE_HOME, unless QUADWIND_TRL_CACHE_DIR moves it), or where its own variable says, in a
+    folder of the processor, kernel path and torch version: inductor's keys leave the processor
+    out, so a cache shared with another one must not be looked at."""
+    from quadwind_trl.cache import CACHE_DIR_VARIABLE
     from quadwind_trl.envs import control_step
 
     monkeypatch.delenv(control_step.COMPILE_CACHE_ENV, raising=False)
+    monkeypatch.delenv(CACHE_DIR_VARIABLE, raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     here = control_step.compile_cache_dir()
     assert here.parent == tmp_path / "xdg" / "quadwind_trl" / "compile" and here.name.startswith(f"torch-{torch.__version__}-")
+    monkeypatch.setenv(CACHE_DIR_VARIABLE, str(tmp_path / "root"))
+    assert control_step.compile_cache_dir() == tmp_path / "root" / "compile" / here.name
     monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path / "mine"))
     assert control_step.compile_cache_dir() == tmp_path / "mine" / here.name
     real = control_step.platform_info()

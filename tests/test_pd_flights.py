@@ -12,7 +12,8 @@ from quadwind_trl.regimes import classical_controller
 from quadwind_trl.rl import pd_flights
 from quadwind_trl.rl.envs import EnvFactory
 from quadwind_trl.rl.paired import fly_paired
-from quadwind_trl.rl.pd_flights import PD_EVAL_KEYS, cache_dir, flight_key, pd_env, pd_evaluation
+from quadwind_trl.cache import CACHE_DIR_VARIABLE, cache_dir
+from quadwind_trl.rl.pd_flights import PD_EVAL_KEYS, flight_key, pd_env, pd_evaluation
 from test_ppo import _two_hover_validation_episodes, hover_spec
 
 
@@ -113,7 +114,7 @@ def test_a_base_law_that_reads_the_wind_estimate_flies_every_time(flights):
 def test_a_cache_that_cannot_be_written_costs_only_the_next_flights(flights, monkeypatch, tmp_path):
     blocked = tmp_path / "a_file"
     blocked.write_text("not a folder")
-    monkeypatch.setenv(pd_flights.CACHE_DIR_VARIABLE, str(blocked))
+    monkeypatch.setenv(CACHE_DIR_VARIABLE, str(blocked))
     sc = _two_hover_validation_episodes()
     spec = hover_spec()
     env = _eval_env(spec)

@@ -33,6 +33,7 @@ import torch
 from tensordict import TensorDict
 from torch import Tensor
 
+from ..cache import cache_dir
 from ..manifest import platform_info
 from .operands import operands, tracing
 from .tensordicts import entry, select_rows, unchecked
@@ -62,13 +63,12 @@ _COMPILED_CODE_PLATFORM = ("machine", "cpu", "vector_isa", "aten_cpu_capability"
 
 def compile_cache_dir() -> Path:
     """Where compiled steps are kept between processes: ``quadwind_trl/compile`` in the user's
-    cache folder (``$XDG_CACHE_HOME``, by default ``~/.cache``), or the folder the environment
+    cache folder (:func:`quadwind_trl.cache.cache_dir`), or the folder the environment
     variable ``QUADWIND_TRL_COMPILE_CACHE`` names, and in it one folder per processor, ATen
     kernel path and torch version (``torch-2.13.0+cpu-avx512-<hash of the processor>``): entries
     made elsewhere are never looked at. The process's first compiled env points inductor's
     cache (``TORCHINDUCTOR_CACHE_DIR``) there, for every ``torch.compile`` of the process."""
-    user_cache = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
-    root = Path(os.environ.get(COMPILE_CACHE_ENV) or user_cache / "quadwind_trl" / "compile").expanduser().absolute()
+    root = Path(os.environ.get(COMPILE_CACHE_ENV) or cache_dir() / "compile").expanduser().absolute()
     platform = platform_info()
     identity = json.dumps({k: platform[k] for k in _COMPILED_CODE_PLATFORM}, sort_keys=True)
     digest = hashlib.sha256(identity.encode()).hexdigest()[:12]

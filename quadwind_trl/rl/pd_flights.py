@@ -11,7 +11,7 @@ worlds, and the base law is the zero action): the package's source, the platform
 depends on (:func:`~quadwind_trl.manifest.platform_info`: processor, kernel path, BLAS, torch,
 threads), the env config, the compiled or eager step, the device, the batch size and the
 scenarios. Any change to them is another name, so a stale entry is never looked up. Entries live
-under :func:`cache_dir` and are written through a temporary file and a rename, so two processes
+under :func:`~quadwind_trl.cache.cache_dir` and are written through a temporary file and a rename, so two processes
 may write one at once; one that cannot be read, or does not fit its scenarios, is flown again and
 replaced, never trusted; a cache folder that cannot be written is done without. A base law that reads the wind estimate flies every time: its flights
 depend on the estimator too.
@@ -28,23 +28,14 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, TransformedEnv
 
+from ..cache import cache_dir
 from ..config import config_to_dict
 from ..manifest import platform_info, save_atomic
 from .envs import RLEnvSpec
 from .paired import fly_paired
 
-# the environment variable that moves the cache (default: quadwind_trl/ in the user's cache directory)
-CACHE_DIR_VARIABLE = "QUADWIND_TRL_CACHE_DIR"
 # PD's per-episode results an evaluation scores the policy against (``pd_eval``)
 PD_EVAL_KEYS = ("index", "rmse_xy", "rmse_z", "crashed")
-
-
-def cache_dir() -> Path:
-    """Where quadwind_trl keeps what it can rebuild: ``$QUADWIND_TRL_CACHE_DIR``, else
-    ``quadwind_trl`` in the user's cache directory (``$XDG_CACHE_HOME``, else ``~/.cache``)."""
-    if os.environ.get(CACHE_DIR_VARIABLE):
-        return Path(os.environ[CACHE_DIR_VARIABLE])
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "quadwind_trl"
 
 
 def pd_env(env: TransformedEnv) -> EnvBase:
