@@ -11,17 +11,17 @@ worlds, and the base law is the zero action): the package's source, the platform
 depends on (:func:`~quadwind_trl.manifest.platform_info`: processor, kernel path, BLAS, torch,
 threads), the env config, the compiled or eager step, the device, the batch size and the
 scenarios. Any change to them is another name, so a stale entry is never looked up. Entries live
-under :func:`~quadwind_trl.cache.cache_dir` and are written through a temporary file and a rename, so two processes
-may write one at once; one that cannot be read, or does not fit its scenarios, is flown again and
-replaced, never trusted; a cache folder that cannot be written is done without. A base law that reads the wind estimate flies every time: its flights
-depend on the estimator too.
+under :func:`~quadwind_trl.cache.cache_dir` and are written through a temporary file and a
+rename, so two processes may write one at once; one that cannot be read, or does not fit its
+scenarios, is flown again and replaced, never trusted; a cache folder that cannot be written is
+done without. A base law that reads the wind estimate flies every time: its flights depend on
+the estimator too.
 """
 from __future__ import annotations
 
 import functools
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import torch
@@ -107,9 +107,7 @@ def _read(path: Path, episodes: int) -> dict[str, torch.Tensor] | None:
     missing, unreadable or of another shape (the caller flies PD again and replaces it)."""
     try:
         kept = torch.load(path, weights_only=True)
-    except FileNotFoundError:
-        return None
-    except Exception:  # truncated, corrupt, or not a tensor file: whatever it held is not trusted
+    except Exception:  # missing, truncated, corrupt, or not a tensor file: nothing is trusted
         return None
     fits = (isinstance(kept, dict) and set(kept) == set(PD_EVAL_KEYS)
             and all(isinstance(v, torch.Tensor) and tuple(v.shape) == (episodes,) for v in kept.values())
