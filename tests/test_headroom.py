@@ -89,6 +89,15 @@ def test_the_section_renders_what_the_file_holds(flown, tmp_path):
     # the parts in the order the split takes them, not the file's sorted keys
     assert text.index("| still air, true state") < text.index("| mean wind |") < text.index("| navigation (sensing) |")
     assert SECTION.render(ReportContext(tmp_path / "nothing_here", tmp_path)) is None
+    # another base's file, where the recipe's --results put it: a row and a block of its own, after the observer's
+    other = tmp_path / "experiments" / "headroom_dob_inner"
+    other.mkdir(parents=True)
+    (other / "headroom_horizontal.json").write_text(json.dumps(dict(saved, base="dob_inner", git_commit="def456")))
+    text = SECTION.render(ReportContext(tmp_path, tmp_path))
+    assert text.index("| horizontal | `dob` |") < text.index("| horizontal | `dob_inner` |")
+    assert text.index("**horizontal, `dob`** (`results/headroom_horizontal.json`") < text.index(
+        "**horizontal, `dob_inner`** (`results/experiments/headroom_dob_inner/headroom_horizontal.json`")
+    assert "at `def456`" in text
 
 
 def test_bad_input_is_refused():

@@ -25,6 +25,9 @@ import functools
 import hashlib
 import json
 import os
+import shutil
+import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
@@ -85,6 +88,24 @@ def _use_compile_cache() -> Path:
                       "to a writable folder") from error
     os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(folder)
     return folder
+
+
+def _discard_compile_cache() -> Path:
+    """Move :func:`compile_cache_dir` aside and delete it, and forget what inductor loaded from
+    it, so that the next compile starts from an empty folder. Moved first (an atomic rename), so
+    that a second process never reads a half-deleted folder: it keeps the files it has open and
+    finds the folder's path empty. Returns the folder."""
+    from torch._inductor.utils import clear_caches
+
+    folder = compile_cache_dir()
+    stale = folder.with_name(f"{folder.name}.discarded-{os.getpid()}-{time.time_ns()}")
+    try:
+        folder.rename(stale)
+    except FileNotFoundError:  # another process discarded it first
+        pass
+    shutil.rmtree(stale, ignore_errors=True)
+    clear_caches()
+    return _use_compile_cache()
 
 
 def held_control_step(sim: QuadSimulator, task: Task, params: TensorDict, state: TensorDict, action: Tensor,
@@ -203,14 +224,22 @@ class CompiledControlStep:
         if first and self.dynamic:  # a graph traced with N symbolic keeps it so: later calls need no marks
             for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
                 torch._dynamo.maybe_mark_dynamic(leaf, 0)
+        args = (self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne, *totals)
         try:
-            new, *totals = self._function(self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne,
-                                          *totals)
+            new, *totals = self._function(*args)
         except torch._dynamo.exc.BackendCompilerFailed as error:
-            # inductor trusts a compiled library in its cache because it exists: a truncated one
-            # (a compile killed while writing it, a full disk) fails every later compile, and
-            # only the folder's path, which torch's message does not give, tells the user the fix
-            error.add_note(f"the compiled step's cache is {compile_cache_dir()}: where the compile fails on a file "
-                           "there (a truncated library), delete that folder and run again")
-            raise
+            # inductor trusts what its cache holds because it exists: a library or module truncated
+            # by a compile that was killed while writing it (or a full disk) fails every later
+            # compile. The cache is never the only copy of anything, so it is rebuilt: the folder
+            # moved aside and the step compiled afresh, once; a compile that fails again is
+            # inductor's own failure, not the cache's
+            warnings.warn(f"the step's compile failed ({type(error.inner_exception).__name__}: "
+                          f"{error.inner_exception}); its cache {_discard_compile_cache()} was discarded and the "
+                          "step is compiled afresh", RuntimeWarning, stacklevel=2)
+            try:
+                new, *totals = self._function(*args)
+            except torch._dynamo.exc.BackendCompilerFailed as again:
+                again.add_note(f"the compiled step failed to compile with an empty cache ({compile_cache_dir()}) "
+                               "too: the cause is not the cache")
+                raise
         return (_rebuild(layout.state, new, state.batch_size), *totals)

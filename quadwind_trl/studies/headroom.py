@@ -133,7 +133,7 @@ WIND_LABEL = {"full": "full wind", "mean_only": "mean wind only", "still": "stil
 
 
 def _section_for(key: str, r: dict) -> list[str]:
-    lines = [f"**{r['sweep']}** (`results/{key}.json`; {r['episodes']} test episodes; {r['base_label']}; "
+    lines = [f"**{r['sweep']}, `{r.get('base', BASE)}`** (`results/{key}.json`; {r['episodes']} test episodes; {r['base_label']}; "
              f"`{r['command']}` at `{r['git_commit']}`)", ""]
     winds = [w for w in WINDS if w in r["cells"]["navigation"]]
     lines.append("| sensing | " + " | ".join(f"xy: {WIND_LABEL[w]}" for w in winds) + " | "
@@ -163,20 +163,41 @@ def _section_for(key: str, r: dict) -> list[str]:
     return lines
 
 
+def _summary(results: dict[str, dict]) -> list[str]:
+    """One row per file: each base's full-wind RMSE against the floor, and the cascade's lag."""
+    lines = ["| sweep | base | xy (m) | z (m) | nav floor xy / z (m) | headroom xy / z | still-air lag, share of xy | file |",
+             "|---|---|---|---|---|---|---|---|"]
+    for key, r in results.items():
+        xy, z = r["split"]["xy"], r["split"]["z"]
+        lag = xy["wind_on_true_state"]["still_air_true_state"]["share_pct"]
+        lines.append(f"| {r['sweep']} | `{r.get('base', BASE)}` | {xy['total']:.3f} | {z['total']:.3f} | "
+                     f"{xy['navigation_error']:.3f} / {z['navigation_error']:.3f} | {xy['headroom_pct']:.0f} % / "
+                     f"{z['headroom_pct']:.0f} % | {lag:.0f} % | `results/{key}.json` |")
+    return lines + [""]
+
+
 def headroom_section(results: dict[str, dict]) -> str:
-    """The markdown section of ``docs/results.md`` for the ``headroom_<regime>`` results (by file
-    stem; horizontal first), with the tables, commands and commits."""
-    keys = sorted(results, key=lambda k: (k != "headroom_horizontal", k))
+    """The markdown section of ``docs/results.md`` for the headroom results (by path under
+    ``results/`` without ``.json``: ``headroom_<regime>`` for the observer, and any other base's in
+    ``experiments/headroom_<base>/``), sweep by sweep, the observer first, with the tables,
+    commands and commits."""
+    sweeps = ("horizontal", "vertical")
+    order = sorted(results, key=lambda k: (sweeps.index(results[k]["sweep"]) if results[k]["sweep"] in sweeps else 2,
+                                           results[k].get("base", BASE) != BASE, k))
+    ordered = {key: results[key] for key in order}
     lines = ["## Headroom over the best classical controller", "",
-             "The disturbance observer, the best classical base on validation in both regimes, flown again on the test",
-             "sweeps' episodes with the sensing idealised and the wind removed (`quadwind_trl/studies/headroom.py`, through",
-             "the error budget). *nav error* is the error of the position it flies on, which no controller can see;",
-             "still air on the true state leaves only the cascade's own lag behind the reference. The splits add up to the",
-             "as-shipped full-wind RMSE; RMSEs do not add, so both orders are shown.", ""]
-    for key in keys:
-        lines += _section_for(key, results[key])
+             "The classical bases chosen on validation (the disturbance observer in both regimes; in xy, the observer",
+             "with the stiffer inner loop, `dob_inner`), flown again on the test sweeps' episodes with the sensing",
+             "idealised and the wind removed (`quadwind_trl/studies/headroom.py`, through the error budget). *nav error* is",
+             "the error of the position it flies on, which no controller can see; still air on the true state leaves",
+             "only the cascade's own lag behind the reference. The splits add up to the as-shipped full-wind RMSE; RMSEs",
+             "do not add, so both orders are shown. *headroom* = 1 - navigation error / RMSE: the most a perfect",
+             "controller could remove.", ""]
+    lines += _summary(ordered)
+    for key, r in ordered.items():
+        lines += _section_for(key, r)
     return "\n".join(lines)
 
 
-SECTION = Section.of_results("headroom", "Headroom over the best classical controller", "headroom_*.json",
+SECTION = Section.of_results("headroom", "Headroom over the best classical controller", "**/headroom_*.json",
                              headroom_section)

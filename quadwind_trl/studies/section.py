@@ -60,8 +60,9 @@ class ReportContext:
 
     def jsons(self, pattern: str) -> dict[str, dict]:
         """Every results file matching the glob ``pattern`` (under the results folder), parsed, by
-        file stem in name order."""
-        return {path.stem: json.loads(path.read_text()) for path in sorted(self.results.glob(pattern))}
+        its path under the folder without ``.json`` (a top-level file: its stem), in name order."""
+        return {path.relative_to(self.results).with_suffix("").as_posix(): json.loads(path.read_text())
+                for path in sorted(self.results.glob(pattern))}
 
     @cached_property
     def ablations(self) -> dict[str, dict]:
