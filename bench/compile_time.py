@@ -9,7 +9,7 @@ safe with two processes at once and with a corrupt entry.
     python bench/compile_time.py --fresh-cache --corrupt entries   # truncate the cache's files between them
 
 Each of ``--processes`` fresh interpreters (one after the other, or with ``--concurrent`` all at
-once, sharing the compile cache: ``quadwind_trl.envs.control_step.compile_cache_dir``, or with
+once, sharing the compile cache: ``quadwind_trl.envs.compile_cache.compile_cache_dir``, or with
 ``--fresh-cache`` a new temporary folder) builds one compiled env per ``--sizes`` entry, in that
 order, and times its first step (tracing, compilation or a cache load, and one control step) and
 its second. One parseable line per env::
@@ -97,10 +97,16 @@ def _compile_time(compile_times, phase: str) -> float:
 
 
 def corrupt(folder: Path, kind: str) -> int:
-    """Truncate every file of ``kind`` under ``folder`` to half its length; how many were."""
+    """Truncate every file of ``kind`` under ``folder`` to half its length, dated as a compile
+    killed in an earlier session leaves them (older than the library's grace for a file being
+    written, ``compile_cache.WRITE_GRACE_S``); how many were."""
+    from quadwind_trl.envs.compile_cache import WRITE_GRACE_S
+
     files = [p for pattern in CORRUPTIBLE[kind] for p in folder.glob(pattern) if p.is_file() and p.stat().st_size > 1]
+    then = time.time() - 2 * WRITE_GRACE_S
     for path in files:
         path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+        os.utime(path, (then, then))
     return len(files)
 
 

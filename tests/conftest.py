@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from quadwind_trl.cache import CACHE_DIR_VARIABLE, cache_dir
-from quadwind_trl.envs.control_step import COMPILE_CACHE_ENV
+from quadwind_trl.envs.compile_cache import COMPILE_CACHE_ENV
 from quadwind_trl.config import ControllerConfig, EnvConfig, SensorConfig, TrajectoryConfig, TurbulenceConfig, WindProfileConfig
 
 torch.set_num_threads(1)

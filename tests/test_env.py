@@ -543,7 +543,7 @@ def test_compiled_step_matches_eager_at_every_size():
     from torch._dynamo.utils import counters
     from torch._inductor.runtime.cache_dir_utils import cache_dir
 
-    from quadwind_trl.envs.control_step import compile_cache_dir
+    from quadwind_trl.envs.compile_cache import compile_cache_dir
 
     cfg = _replay_record_config()
     sc = make_scenarios(3, traj_id=[1, 7, 4], altitude_m=25.0, wind_speed_ref_m_s=8.0, turb_intensity=0.2,
@@ -573,85 +573,6 @@ def test_static_compiled_step_matches_eager():
     _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[3], compile_step="static"), 3),
                      _with_partial_reset(QuadWindEnv(cfg, batch_size=[3]), 3))
     assert counters["frames"]["ok"] == compilations
-
-
-def test_the_compile_cache_is_the_users_and_one_folder_per_processor(tmp_path, monkeypatch):
-    """The compile cache lives under the library's cache root (the user's cache folder,
-    XDG_CACHE_HOME, unless QUADWIND_TRL_CACHE_DIR moves it), or where its own variable says, in a
-    folder of the processor, kernel path and torch version: inductor's keys leave the processor
-    out, so a cache shared with another one must not be looked at."""
-    from quadwind_trl.cache import CACHE_DIR_VARIABLE
-    from quadwind_trl.envs import control_step
-
-    monkeypatch.delenv(control_step.COMPILE_CACHE_ENV, raising=False)
-    monkeypatch.delenv(CACHE_DIR_VARIABLE, raising=False)
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
-    here = control_step.compile_cache_dir()
-    assert here.parent == tmp_path / "xdg" / "quadwind_trl" / "compile" and here.name.startswith(f"torch-{torch.__version__}-")
-    monkeypatch.setenv(CACHE_DIR_VARIABLE, str(tmp_path / "root"))
-    assert control_step.compile_cache_dir() == tmp_path / "root" / "compile" / here.name
-    monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path / "mine"))
-    assert control_step.compile_cache_dir() == tmp_path / "mine" / here.name
-    real = control_step.platform_info()
-    for key, other in (("cpu", "another processor"), ("aten_cpu_capability", "AVX2"), ("torch", "2.99.0")):
-        monkeypatch.setattr(control_step, "platform_info", lambda k=key, v=other: {**real, k: v})
-        assert control_step.compile_cache_dir().name != here.name, key
-
-
-def test_an_unwritable_compile_cache_names_the_variable(tmp_path, monkeypatch):
-    from quadwind_trl.envs import control_step
-
-    (tmp_path / "a_file").write_text("")
-    monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path / "a_file" / "cache"))
-    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", "unchanged")  # restored after the test
-    with pytest.raises(OSError, match=control_step.COMPILE_CACHE_ENV):
-        control_step._use_compile_cache()
-    assert os.environ["TORCHINDUCTOR_CACHE_DIR"] == "unchanged"
-
-
-def test_a_compile_that_fails_on_its_cache_is_rebuilt_from_an_empty_one(monkeypatch, tmp_path):
-    """A compile that fails (e.g. on a library truncated in the cache, which inductor trusts)
-    discards the cache folder and compiles once more from an empty one; the step then flies as it
-    would have. A compile that fails with an empty cache too is raised, saying the cache is not
-    the cause. (A real truncated library: docs/benchmarks.md, "A corrupt compile cache".)"""
-    import torch._dynamo.exc
-
-    from quadwind_trl.envs import control_step
-
-    monkeypatch.setenv(control_step.COMPILE_CACHE_ENV, str(tmp_path))
-    monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", "unchanged")  # restored after the test
-    folder = control_step._use_compile_cache()
-    (folder / "truncated.so").write_bytes(b"\x7fELF")
-    calls = []
-
-    def fails_on_the_cache_once(*args):
-        calls.append(folder.exists() and (folder / "truncated.so").exists())
-        if len(calls) == 1:
-            raise torch._dynamo.exc.BackendCompilerFailed("inductor", ImportError("cannot read file data"), None)
-        return control_step._flat_held_control_step(*args)
-
-    env = QuadWindEnv(EnvConfig(), batch_size=[2], compile_step=True)
-    env._advance._function = fails_on_the_cache_once
-    eager = QuadWindEnv(EnvConfig(), batch_size=[2])
-    td, td_eager = env.reset(), eager.reset()
-    td["action"] = td_eager["action"] = torch.full((2, 4), 0.1)
-    with pytest.warns(RuntimeWarning, match="discarded"):
-        stepped = env.step(td)
-    assert calls == [True, False]  # the second compile saw an empty folder
-    assert folder.is_dir() and not any(folder.iterdir()) and os.environ["TORCHINDUCTOR_CACHE_DIR"] == str(folder)
-    assert not list(tmp_path.glob("*.discarded-*"))
-    expected = eager.step(td_eager)
-    assert set(stepped["next"].keys(True, True)) == set(expected["next"].keys(True, True))
-    for key in expected["next"].keys(True, True):
-        torch.testing.assert_close(stepped["next", key], expected["next", key], rtol=0, atol=0)
-
-    def always_fails(*args):
-        raise torch._dynamo.exc.BackendCompilerFailed("inductor", RuntimeError("an inductor bug"), None)
-
-    env._advance._function = always_fails
-    with pytest.warns(RuntimeWarning), pytest.raises(torch._dynamo.exc.BackendCompilerFailed) as failed:
-        env.step(stepped["next"].clone().set("action", td["action"]))
-    assert any("empty cache" in note and "not the cache" in note for note in failed.value.__notes__)
 
 
 def test_compile_step_choices():

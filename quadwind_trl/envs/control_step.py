@@ -22,22 +22,15 @@ through ``torch.compile``, one compiled function per process for every env:
 from __future__ import annotations
 
 import functools
-import hashlib
-import json
-import os
-import shutil
-import time
 import warnings
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING, NamedTuple
 
 import torch
 from tensordict import TensorDict
 from torch import Tensor
 
-from ..cache import cache_dir
-from ..manifest import platform_info
+from .compile_cache import compile_cache_dir, discard_broken_entry, use_compile_cache
 from .operands import operands, tracing
 from .tensordicts import entry, select_rows, unchecked
 
@@ -50,62 +43,6 @@ if TYPE_CHECKING:
 # runs the step eagerly for every later one, silently: an ablation of three sweeps x five
 # controllers in one process has more
 COMPILED_STEPS_PER_PROCESS = 64
-
-
-#: The environment variable that moves the compile cache: a folder, under which each processor
-#: and torch version gets a folder of its own (:func:`compile_cache_dir`)
-COMPILE_CACHE_ENV = "QUADWIND_TRL_COMPILE_CACHE"
-#: What inductor's cache keys leave out and its compiled code depends on (keys of
-#: :func:`~quadwind_trl.manifest.platform_info`): it compiles C++ with ``-march=native`` for the
-#: vector instruction set ATen's capability (``ATEN_CPU_CAPABILITY``) allows, but keys an entry by
-#: the graph, its config and the torch sources only, so a cache shared with another processor (a
-#: network home folder) or kernel path would load kernels built for other instructions (a run
-#: under ``ATEN_CPU_CAPABILITY=avx2`` that reused an AVX-512 cache crashed)
-_COMPILED_CODE_PLATFORM = ("machine", "cpu", "vector_isa", "aten_cpu_capability", "torch")
-
-
-def compile_cache_dir() -> Path:
-    """Where compiled steps are kept between processes: ``quadwind_trl/compile`` in the user's
-    cache folder (:func:`quadwind_trl.cache.cache_dir`), or the folder the environment
-    variable ``QUADWIND_TRL_COMPILE_CACHE`` names, and in it one folder per processor, ATen
-    kernel path and torch version (``torch-2.13.0+cpu-avx512-<hash of the processor>``): entries
-    made elsewhere are never looked at. The process's first compiled env points inductor's
-    cache (``TORCHINDUCTOR_CACHE_DIR``) there, for every ``torch.compile`` of the process."""
-    root = Path(os.environ.get(COMPILE_CACHE_ENV) or cache_dir() / "compile").expanduser().absolute()
-    platform = platform_info()
-    identity = json.dumps({k: platform[k] for k in _COMPILED_CODE_PLATFORM}, sort_keys=True)
-    digest = hashlib.sha256(identity.encode()).hexdigest()[:12]
-    return root / f"torch-{platform['torch']}-{platform['aten_cpu_capability'].lower()}-{digest}"
-
-
-def _use_compile_cache() -> Path:
-    """Point inductor's caches at :func:`compile_cache_dir` (made if missing)."""
-    folder = compile_cache_dir()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        raise OSError(f"compile cache folder {folder} cannot be made ({error.strerror}); set {COMPILE_CACHE_ENV} "
-                      "to a writable folder") from error
-    os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(folder)
-    return folder
-
-
-def _discard_compile_cache() -> Path:
-    """Move :func:`compile_cache_dir` aside and delete it, and forget what inductor loaded from
-    it, so that the next compile starts from an empty folder. Moved first (an atomic rename), so
-    that a second process never reads a half-deleted folder: it keeps the files it has open and
-    finds the folder's path empty. Returns the folder."""
-    from torch._inductor.utils import clear_caches
-
-    folder = compile_cache_dir()
-    stale = folder.with_name(f"{folder.name}.discarded-{os.getpid()}-{time.time_ns()}")
-    try:
-        folder.rename(stale)
-    except FileNotFoundError:  # another process discarded it first
-        pass
-    shutil.rmtree(stale, ignore_errors=True)
-    clear_caches()
-    return _use_compile_cache()
 
 
 def held_control_step(sim: QuadSimulator, task: Task, params: TensorDict, state: TensorDict, action: Tensor,
@@ -183,7 +120,7 @@ def _compiled_function(dynamic: bool) -> Callable:
     default would make ``N`` symbolic at an env's second batch size)."""
     import torch._dynamo
 
-    _use_compile_cache()
+    use_compile_cache()
     cfg = torch._dynamo.config
     cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_STEPS_PER_PROCESS)
     return torch.compile(_flat_held_control_step, dynamic=None if dynamic else False)
@@ -228,18 +165,18 @@ class CompiledControlStep:
         try:
             new, *totals = self._function(*args)
         except torch._dynamo.exc.BackendCompilerFailed as error:
-            # inductor trusts what its cache holds because it exists: a library or module truncated
-            # by a compile that was killed while writing it (or a full disk) fails every later
-            # compile. The cache is never the only copy of anything, so it is rebuilt: the folder
-            # moved aside and the step compiled afresh, once; a compile that fails again is
-            # inductor's own failure, not the cache's
+            # a broken cache entry that the check before the first compile could not see (one
+            # younger than its grace, a module rather than a library) is deleted and the step
+            # compiled once more (.compile_cache); a compile that fails again is inductor's own
+            # failure, not the cache's
             warnings.warn(f"the step's compile failed ({type(error.inner_exception).__name__}: "
-                          f"{error.inner_exception}); its cache {_discard_compile_cache()} was discarded and the "
-                          "step is compiled afresh", RuntimeWarning, stacklevel=2)
+                          f"{error.inner_exception}); {discard_broken_entry(error)} was deleted from its cache and "
+                          "the step is compiled again", RuntimeWarning, stacklevel=2)
             try:
                 new, *totals = self._function(*args)
             except torch._dynamo.exc.BackendCompilerFailed as again:
-                again.add_note(f"the compiled step failed to compile with an empty cache ({compile_cache_dir()}) "
-                               "too: the cause is not the cache")
+                again.add_note(f"the compiled step failed to compile again after its broken cache entry was deleted "
+                               f"(cache: {compile_cache_dir()}): where it names a file there, delete that folder; "
+                               "else the cause is not the cache")
                 raise
         return (_rebuild(layout.state, new, state.batch_size), *totals)

@@ -146,7 +146,7 @@ class QuadWindEnv(EnvBase):
     through ``torch.compile`` with the batch dimension symbolic, one compilation per
     configuration for every batch size and partial reset; ``"static"`` with static sizes, one
     compilation per configuration and batch size. Compiled code is kept on disk between
-    processes (:func:`~quadwind_trl.envs.control_step.compile_cache_dir`;
+    processes (:func:`~quadwind_trl.envs.compile_cache.compile_cache_dir`;
     :mod:`quadwind_trl.envs.control_step`).
 
     The simulator's per-episode ``params`` and dynamic ``state`` (TensorDicts, keys in
