@@ -19,6 +19,11 @@ the per-lever summary) and ``OUT/screen.md`` at the end (default OUT:
 ``results/experiments/levers/<regime>_<base>``). A run whose row is on disk is not trained again,
 so an interrupted screen resumes where it stopped (an interrupted run from its checkpoint). Only
 validation flights are flown: choosing among the levers never looks at a test sweep.
+
+Seeds run beside each other each need an ``--out`` of their own (a screen holds its folder);
+``--collect DIR [DIR ...]`` then gathers their rows into ``--out`` as one screen, training nothing:
+
+    python recipes/screen_levers.py --collect runs/out/seed0 runs/out/seed1 --out results/experiments/levers/x
 """
 from __future__ import annotations
 
@@ -30,7 +35,7 @@ from pathlib import Path
 from quadwind_trl.manifest import command_line, git_commit, platform_info, repo_relative, write_json
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
-from quadwind_trl.rl.screening import LEVERS, ScreenMismatch, ScreenPlan, parse_lever, screen, summarize, table
+from quadwind_trl.rl.screening import LEVERS, ScreenMismatch, ScreenPlan, collect, parse_lever, screen, summarize, table
 
 
 def main() -> None:
@@ -48,11 +53,17 @@ def main() -> None:
     p.add_argument("--quick", action="store_true", help="the recipes' --quick runs on their short flights (smoke test)")
     p.add_argument("--resamples", type=int, default=10_000, help="bootstrap resamples of each paired interval")
     p.add_argument("--list", action="store_true", help="print the catalogue of lever settings and exit")
+    p.add_argument("--collect", nargs="+", type=Path, default=None, metavar="DIR",
+                   help="gather the rows of these screens' output folders into --out as one screen (trains nothing)")
     args, extra = p.parse_known_args()
     if args.list:
         for name, flags in LEVERS[args.regime].items():
             print(f"{name:20s} {' '.join(flags) or '(the recipe as it is)'}")
         return
+    if args.collect:
+        if args.out is None:
+            p.error("--collect writes the gathered screen to --out: name it")
+        return _collect(args.collect, args.out)
     try:
         plan = ScreenPlan(
             regime=args.regime, base=args.base, levers=tuple(parse_lever(t, args.regime) for t in args.levers),
@@ -68,15 +79,35 @@ def main() -> None:
     except ScreenMismatch as err:
         raise SystemExit(f"error: {err}") from None
     command = command_line(sys.argv)
-    write_json(plan.out / "screen.json", {
-        "command": command, "git_commit": git_commit(), "platform": platform_info(),
-        "plan": {k: (repo_relative(v) if isinstance(v, Path) else v) for k, v in asdict(plan).items()},
-        "summary": summarize(rows), "rows": [asdict(r) for r in rows]})
-    md = (f"Lever screen, {plan.regime} validation sweep, residual on `{plan.base}`: gain = RMSE reduction of the "
-          f"residual over {plan.base} alone on the same episodes (positive = better), 95 % paired bootstrap interval.\n\n"
-          f"`{command}`\n\n" + table(rows, plan.base))
-    (plan.out / "screen.md").write_text(md)
+    _write(plan.out, rows, [command], {"plan": {k: (repo_relative(v) if isinstance(v, Path) else v)
+                                                for k, v in asdict(plan).items()}})
+
+
+def _write(out: Path, rows: list, commands: list[str], extra: dict) -> None:
+    """``out/screen.json`` (rows, summary, the commands that flew them) and ``out/screen.md``."""
+    regime, base = rows[0].regime, rows[0].base
+    write_json(out / "screen.json", {"command": commands[-1], "commands": commands, "git_commit": git_commit(),
+                                     "platform": platform_info(), **extra, "summary": summarize(rows),
+                                     "rows": [asdict(r) for r in rows]})
+    flown_at = sorted({r.git_commit or "unknown" for r in rows})
+    md = (f"Lever screen, {regime} validation sweep, residual on `{base}`: gain = RMSE reduction of the residual over "
+          f"{base} alone on the same episodes (positive = better), 95 % paired bootstrap interval. Flown at "
+          f"{', '.join(f'`{c[:7]}`' for c in flown_at)} by:\n\n" + "".join(f"`{c}`\n\n" for c in commands)
+          + table(rows, base))
+    (out / "screen.md").write_text(md)
     print(md)
+
+
+def _collect(folders: list[Path], out: Path) -> None:
+    """``--collect``: the rows of ``folders`` gathered into ``out`` as one screen."""
+    try:
+        rows, commands = collect(folders)
+    except ValueError as err:
+        raise SystemExit(f"error: {err}") from None
+    rows.sort(key=lambda r: (r.lever, r.seed))
+    for row in rows:
+        write_json(out / "rows" / f"{row.lever}_seed{row.seed}.json", asdict(row))
+    _write(out, rows, [*commands, command_line(sys.argv)], {"collected_from": [repo_relative(f) for f in folders]})
 
 
 if __name__ == "__main__":

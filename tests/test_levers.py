@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import pytest
@@ -520,6 +520,47 @@ def test_a_screen_row_says_when_one_episode_decides_the_mean_gain():
     old = replace(row, validation={**row.validation, "xy": {k: v for k, v in xy.items() if k not in
                                                             ("median_episode_gain_pct", "worst_episode")}})
     assert table([old], "dob").rstrip().endswith("| 1.0 min | - | - |")
+
+
+def test_screens_run_beside_each_other_are_collected_into_one(tmp_path):
+    """Seeds screened in folders of their own (a screen holds its folder) gather into one screen:
+    every row, the summary over all seeds and every command; folders of another base, or a run
+    found twice, are refused."""
+    import subprocess
+    import sys
+
+    from quadwind_trl.rl.screening import ScreenRow, _gain, collect
+
+    from test_ppo import ROOT
+
+    def folder(name: str, seed: int, gain: float, base: str = "dob") -> Path:
+        xy = _gain(torch.ones(4), torch.full((4,), 1.0 - gain), resamples=100)
+        row = ScreenRow(lever="base_state", flags=["--base-state-inputs", "all"], seed=seed, regime="horizontal",
+                        base=base, frames=512, train_wall_s=1.0, wall_s=60.0, policy="p", git_commit="abc1234" * 5 + "ab",
+                        validation={"xy": xy, "z": _gain(torch.ones(4), torch.ones(4), 100),
+                                    "crashed": {"base": 0, "policy": 0}})
+        (tmp_path / name / "rows").mkdir(parents=True)
+        (tmp_path / name / "rows" / f"base_state_seed{seed}.json").write_text(json.dumps(asdict(row)))
+        (tmp_path / name / "screen.json").write_text(json.dumps({"command": f"python recipes/screen_levers.py --seeds {seed}"}))
+        return tmp_path / name
+
+    seed0, seed1 = folder("s0", 0, 0.10), folder("s1", 1, 0.20)
+    rows, commands = collect([seed0, seed1])
+    assert [r.seed for r in rows] == [0, 1] and commands == [f"python recipes/screen_levers.py --seeds {k}" for k in (0, 1)]
+    with pytest.raises(ValueError, match="base_state seed 0 is in"):
+        collect([seed0, seed0])
+    with pytest.raises(ValueError, match="other \\(regime, base"):
+        collect([seed0, folder("other", 2, 0.1, base="dob_inner")])
+    out = tmp_path / "together"
+    done = subprocess.run([sys.executable, str(ROOT / "recipes" / "screen_levers.py"), "--collect", str(seed0), str(seed1),
+                           "--out", str(out)], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert sorted(p.name for p in (out / "rows").iterdir()) == ["base_state_seed0.json", "base_state_seed1.json"]
+    summary = json.loads((out / "screen.json").read_text())["summary"][0]
+    assert summary["seeds"] == [0, 1] and math.isclose(summary["xy"]["mean_pct"], 15.0, rel_tol=1e-6)
+    md = (out / "screen.md").read_text()
+    assert "`python recipes/screen_levers.py --seeds 0`" in md and "`python recipes/screen_levers.py --seeds 1`" in md
+    assert "| base_state | `--base-state-inputs all` | 2 | +15.0 % [+10.0, +20.0] |" in md and "`abc1234`" in md
 
 
 def test_screen_levers_quick_writes_a_row_per_run_a_table_and_resumes_from_disk(tmp_path):

@@ -240,6 +240,31 @@ def screen(plan: ScreenPlan, log=print) -> list[ScreenRow]:
     return rows
 
 
+def collect(folders: Sequence[Path]) -> tuple[list[ScreenRow], list[str]]:
+    """The rows (``rows/*.json``) and commands (``screen.json``) of several screens' output
+    folders, as one screen: seeds or levers run beside each other, each screen in a folder of its
+    own (a folder is held by one screen at a time). Refused: folders of other regimes, bases,
+    frames or validation episodes, and a (lever, seed) found in two folders."""
+    rows: dict[tuple[str, int], tuple[ScreenRow, Path]] = {}
+    commands = []
+    for folder in folders:
+        paths = sorted(Path(folder).glob("rows/*.json"))
+        if not paths:
+            raise ValueError(f"collect: {folder} holds no rows (rows/*.json)")
+        if (Path(folder) / "screen.json").exists():
+            commands.append(json.loads((Path(folder) / "screen.json").read_text())["command"])
+        for path in paths:
+            row = ScreenRow(**json.loads(path.read_text()))
+            if (row.lever, row.seed) in rows:
+                raise ValueError(f"collect: {row.lever} seed {row.seed} is in {rows[row.lever, row.seed][1]} and {path}")
+            rows[row.lever, row.seed] = (row, path)
+    found = {(r.regime, r.base, r.frames, r.val_episodes) for r, _ in rows.values()}
+    if len(found) > 1:
+        raise ValueError(f"collect: the folders hold screens of other (regime, base, frames, validation episodes): "
+                         f"{sorted(found, key=str)}; one screen is one of each")
+    return [r for r, _ in rows.values()], commands
+
+
 def summarize(rows: Sequence[ScreenRow]) -> list[dict]:
     """Per lever setting, in the order first seen: seeds, mean / min / max of the xy and z gains,
     the seeds whose xy interval lies above zero, and the mean wall time per run."""
