@@ -19,7 +19,7 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import GRAVITY_M_S2, NavigationConfig
-from .rotations import quat_from_euler, quat_to_rotmat, rotate
+from .rotations import euler_to_rotmat, rotate
 from .tensordicts import unchecked
 
 
@@ -63,7 +63,7 @@ def update_navigation(
     matrix, if the caller has it already (it is computed from ``meas`` otherwise)."""
     gps_pos, gps_vel, baro = meas["gps_pos"], meas["gps_vel"], meas["baro_alt"]
     if rot is None:
-        rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
+        rot = euler_to_rotmat(meas["attitude"])
     acc = rotate(rot, accel_mean) - accel_mean.new_tensor([0.0, 0.0, GRAVITY_M_S2])
     vel = nav["vel"] + dt * acc
     pos = nav["pos"] + dt * vel

@@ -11,70 +11,97 @@ from .operands import operands
 
 
 class _Tables(NamedTuple):
-    """Index and sign tables that let :func:`quat_mul` and :func:`quat_to_rotmat` evaluate their
-    textbook expressions four or nine entries per operation, with the same roundings (``a - b``
-    is ``a + (-1) b`` and ``2 s`` is ``s + s``, exactly): a dozen eager ops instead of thirty;
-    and the numbers :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for
-    the eager step (:mod:`.operands`)."""
+    """The constant maps that let :func:`quat_mul` and :func:`quat_to_rotmat` evaluate their
+    textbook expressions as one broadcast multiply-and-sum over the products of the
+    quaternions' components (a handful of eager ops, not dozens), and the numbers
+    :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for the eager step
+    (:mod:`.operands`)."""
 
-    mul_index: Tensor  # quat_mul: terms 1-3 of each component in the outer product a b^T
-    mul_sign: Tensor
-    rotmat_a: Tensor  # quat_to_rotmat: R_ij = 2 (P[a] + sign P[b]) (1 minus that on the
-    rotmat_b: Tensor  # diagonal), P the outer product q q^T
-    rotmat_sign: Tensor
-    diagonal: Tensor
+    mul_map: Tensor  # [16, 4]: the Hamilton product's sign of a_i b_j (row 4 i + j) in each component
+    rotmat_left: Tensor  # [10]: the components whose products q_l q_r make up R
+    rotmat_right: Tensor  # [10]
+    rotmat_map: Tensor  # [10, 3, 3]: each product's weight in each entry of R
+    euler_index: Tensor  # [2 * 3 * 9]: euler_to_rotmat's factors, of (cos, sin) of the angles and 1
+    euler_sign: Tensor  # [2, 9]: the sign of each entry's two products
+    vee_map: Tensor  # [9, 3]: vee_antisymmetric's weights of the entries m_ij (row 3 i + j)
     one: Tensor
-    sinc_series_below: Tensor  # quat_integrate: the angle below which sin(x)/x is its Taylor series
-    six: Tensor
+    inv_pi: Tensor  # quat_integrate: sin(x) / x is torch.sinc(x / pi)
 
 
 _TABLES: dict[tuple[torch.device, torch.dtype], _Tables] = {}
 
+# (w, x, y, z) = 0 .. 3. The Hamilton product's components, as signed terms a_i b_j
+_HAMILTON = (
+    ((0, 0, 1), (1, 1, -1), (2, 2, -1), (3, 3, -1)),  # w = aw bw - ax bx - ay by - az bz
+    ((0, 1, 1), (1, 0, 1), (2, 3, 1), (3, 2, -1)),  # x = aw bx + ax bw + ay bz - az by
+    ((0, 2, 1), (1, 3, -1), (2, 0, 1), (3, 1, 1)),  # y = aw by - ax bz + ay bw + az bx
+    ((0, 3, 1), (1, 2, 1), (2, 1, -1), (3, 0, 1)),  # z = aw bz + ax by - ay bx + az bw
+)
+# R of a unit quaternion in its homogeneous form, row-major: R_00 = ww + xx - yy - zz,
+# R_01 = 2 (xy - wz), ...; the products are ww, xx, yy, zz, xy, xz, yz, wx, wy, wz
+_ROTMAT_PRODUCTS = ((0, 0), (1, 1), (2, 2), (3, 3), (1, 2), (1, 3), (2, 3), (0, 1), (0, 2), (0, 3))
+_ROTMAT = (
+    ((1, 1, -1, -1, 0, 0, 0, 0, 0, 0), (0, 0, 0, 0, 2, 0, 0, 0, 0, -2), (0, 0, 0, 0, 0, 2, 0, 0, 2, 0)),
+    ((0, 0, 0, 0, 2, 0, 0, 0, 0, 2), (1, -1, 1, -1, 0, 0, 0, 0, 0, 0), (0, 0, 0, 0, 0, 0, 2, -2, 0, 0)),
+    ((0, 0, 0, 0, 0, 2, 0, 0, -2, 0), (0, 0, 0, 0, 0, 0, 2, 2, 0, 0), (1, -1, -1, 1, 0, 0, 0, 0, 0, 0)),
+)
+
+# R = Rz(yaw) Ry(pitch) Rx(roll), row-major, each entry a signed sum of two products of three of
+# (cr, cp, cy, sr, sp, sy, 1) = 0 .. 6: R_00 = cy cp, R_01 = cy sp sr - sy cr, ...; an entry of
+# one product has a second of sign 0
+_EULER = (
+    (((2, 1, 6), 1), ((6, 6, 6), 0)), (((2, 4, 3), 1), ((5, 0, 6), -1)), (((2, 4, 0), 1), ((5, 3, 6), 1)),
+    (((5, 1, 6), 1), ((6, 6, 6), 0)), (((5, 4, 3), 1), ((2, 0, 6), 1)), (((5, 4, 0), 1), ((2, 3, 6), -1)),
+    (((4, 6, 6), -1), ((6, 6, 6), 0)), (((1, 3, 6), 1), ((6, 6, 6), 0)), (((1, 0, 6), 1), ((6, 6, 6), 0)),
+)
+
 
 def _tables(device: torch.device, dtype: torch.dtype) -> _Tables:
-    """The tables on ``device``, signs in ``dtype``, made once (the simulator's first ones by its
-    eager ``initial``, before any compiled step)."""
+    """The tables on ``device`` in ``dtype``, made once (the simulator's first ones by its eager
+    ``initial``, before any compiled step)."""
     key = (device, dtype)
     if key not in _TABLES:
-        index = lambda v: torch.tensor(v, device=device)  # noqa: E731
-        sign = lambda v: torch.tensor(v, dtype=dtype, device=device)  # noqa: E731
-        # flattened outer products, (w, x, y, z) = 0 .. 3: entry 4 i + j is a_i b_j
+        mul_map = torch.zeros(16, 4, dtype=dtype)
+        for component, terms in enumerate(_HAMILTON):
+            for i, j, sign in terms:
+                mul_map[4 * i + j, component] = sign
+        rotmat_map = torch.tensor(_ROTMAT, dtype=dtype).permute(2, 0, 1)  # [product, row, column]
+        left, right = zip(*_ROTMAT_PRODUCTS)
         _TABLES[key] = _Tables(
-            mul_index=index([5, 4, 7, 6, 10, 11, 8, 9, 15, 14, 13, 12]),
-            mul_sign=sign([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0, 1.0, -1.0, -1.0, -1.0, 1.0, 1.0]),
-            # R_00 = 1 - 2 (yy + zz), R_01 = 2 (xy - wz), ...: row-major
-            rotmat_a=index([10, 6, 7, 6, 5, 11, 7, 11, 5]),
-            rotmat_b=index([15, 3, 2, 3, 15, 1, 2, 1, 10]),
-            rotmat_sign=sign([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0]),
-            diagonal=index([True, False, False, False, True, False, False, False, True]),
-            one=sign(1.0),
-            sinc_series_below=sign(1e-4),
-            six=sign(6.0),
+            mul_map=mul_map.to(device),
+            rotmat_left=torch.tensor(left, device=device),
+            rotmat_right=torch.tensor(right, device=device),
+            rotmat_map=rotmat_map.contiguous().to(device),
+            # [product, factor, entry], flattened
+            euler_index=torch.tensor([[[_EULER[e][t][0][f] for e in range(9)] for f in range(3)] for t in range(2)],
+                                     device=device).flatten(),
+            euler_sign=torch.tensor([[_EULER[e][t][1] for e in range(9)] for t in range(2)], dtype=dtype, device=device),
+            vee_map=torch.tensor([[0, 0, 0], [0, 0, 0.5], [0, -0.5, 0], [0, 0, -0.5], [0, 0, 0], [0.5, 0, 0],
+                                  [0, 0.5, 0], [-0.5, 0, 0], [0, 0, 0]], dtype=dtype, device=device),
+            one=torch.tensor(1.0, dtype=dtype, device=device),
+            inv_pi=torch.tensor(1.0 / math.pi, dtype=dtype, device=device),
         )
     return _TABLES[key]
 
 
 def quat_mul(a: Tensor, b: Tensor) -> Tensor:
-    """The Hamilton product, each component ``a_w b_. + term1 + term2 + term3`` summed in that
-    order (``w = aw bw - ax bx - ay by - az bz``, ...)."""
-    t = _tables(a.device, a.dtype)
+    """The Hamilton product (``w = aw bw - ax bx - ay by - az bz``, ...): the products
+    ``a_i b_j`` weighted by their signs in each component and summed."""
     outer = a.unsqueeze(-1) * b.unsqueeze(-2)
-    term1, term2, term3 = (outer.flatten(-2).index_select(-1, t.mul_index) * t.mul_sign).unflatten(-1, (3, 4)).unbind(-2)
-    return ((outer[..., 0, :] + term1) + term2) + term3
+    return torch.linalg.vecdot(outer.reshape(*outer.shape[:-2], 16, 1), _tables(a.device, a.dtype).mul_map, dim=-2)
 
 
 def quat_to_rotmat(q: Tensor) -> Tensor:
-    """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body``; its columns are the body axes."""
+    """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body`` of a unit quaternion; its
+    columns are the body axes."""
     t = _tables(q.device, q.dtype)
-    products = (q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
-    half = products.index_select(-1, t.rotmat_a) + products.index_select(-1, t.rotmat_b) * t.rotmat_sign
-    twice = half + half
-    return torch.where(t.diagonal, t.one - twice, twice).unflatten(-1, (3, 3))
+    products = q.index_select(-1, t.rotmat_left) * q.index_select(-1, t.rotmat_right)
+    return torch.linalg.vecdot(products.reshape(*products.shape[:-1], 10, 1, 1), t.rotmat_map, dim=-3)
 
 
 def body_z_vertical(q: Tensor) -> Tensor:
     """``[..., 1]``: ``quat_to_rotmat(q)[..., 2, 2:3]``, the vertical component of the body z axis
-    (``1 - 2 (xx + yy)``, the same bits), without the other eight entries."""
+    (as ``1 - 2 (xx + yy)``), without the other eight entries."""
     xy = q[..., 1:3]
     squares = xy * xy
     half = squares[..., :1] + squares[..., 1:]
@@ -95,6 +122,15 @@ def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
         ),
         -1,
     )
+
+
+def euler_to_rotmat(angles: Tensor) -> Tensor:
+    """``[..., 3, 3]``: the rotation matrix of Z-Y-X Euler angles ``[..., 3]`` (roll, pitch, yaw,
+    radians), ``quat_to_rotmat(quat_from_euler(roll, pitch, yaw))`` without the quaternion."""
+    t = _tables(angles.device, angles.dtype)
+    factors = torch.cat((torch.cos(angles), torch.sin(angles), t.one.expand(*angles.shape[:-1], 1)), -1)
+    products = factors.index_select(-1, t.euler_index).unflatten(-1, (2, 3, 9)).prod(-2)
+    return torch.linalg.vecdot(products, t.euler_sign, dim=-2).unflatten(-1, (3, 3))
 
 
 def atan2(y: Tensor, x: Tensor) -> Tensor:
@@ -121,34 +157,33 @@ def quat_integrate(q: Tensor, omega_body: Tensor, half_dt: Tensor | float) -> Te
     renormalised. ``half_dt``: half the step, a number or (for an eager caller that steps often:
     no conversion per use) a 0-dim tensor of the rate's dtype."""
     t = _tables(q.device, q.dtype)
-    series_below, one, six = operands((t.sinc_series_below, t.one, t.six), (1e-4, 1.0, 6.0))
+    inv_pi = operands(t.inv_pi, 1.0 / math.pi)
     half_angle = half_dt * omega_body
     theta = norm(half_angle)
-    # sin(theta)/theta, with its Taylor series where theta is tiny (no division by zero)
-    sinc = torch.where(theta < series_below, one - theta * theta / six, torch.sin(theta) / theta.clamp_min(1e-12))
-    dq = torch.cat((torch.cos(theta), sinc * half_angle), -1)
+    # sin(theta) / theta, 1 at theta = 0 (no division by zero)
+    dq = torch.cat((torch.cos(theta), torch.sinc(theta * inv_pi) * half_angle), -1)
     out = quat_mul(q, dq)
     return out / norm(out)
 
 
-# Small products as broadcast multiply-and-sum rather than ``@``: as fast for 3x3 and 4x4, fused
-# by torch.compile, and free of BLAS's size-dependent kernel choice, so a row's result does not
-# depend on how many rows share its batch (bitwise replay).
+# Small products as broadcast multiply-and-sum (``linalg.vecdot``: one eager op) rather than ``@``:
+# as fast for 3x3 and 4x4, fused by torch.compile, and free of BLAS's size-dependent kernel choice,
+# so a row's result does not depend on how many rows share its batch (bitwise replay).
 
 
 def matvec(m: Tensor, v: Tensor) -> Tensor:
     """``m @ v`` over the last two/one dims, batch-size independent."""
-    return (m * v.unsqueeze(-2)).sum(-1)
+    return torch.linalg.vecdot(m, v.unsqueeze(-2))
 
 
 def vecmat(v: Tensor, m: Tensor) -> Tensor:
     """``v @ m`` (``v`` ``[..., K]``, ``m`` ``[..., K, J]``), batch-size independent."""
-    return (v.unsqueeze(-1) * m).sum(-2)
+    return torch.linalg.vecdot(v.unsqueeze(-1), m, dim=-2)
 
 
-def matmul(a: Tensor, b: Tensor) -> Tensor:
-    """``a @ b`` for batches of small matrices, batch-size independent."""
-    return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
+def transpose_matmul(a: Tensor, b: Tensor) -> Tensor:
+    """``a^T @ b`` for batches of small matrices, batch-size independent."""
+    return torch.linalg.vecdot(a.unsqueeze(-1), b.unsqueeze(-2), dim=-3)
 
 
 def norm(v: Tensor) -> Tensor:
@@ -167,6 +202,7 @@ def rotate_inverse(r: Tensor, v: Tensor) -> Tensor:
     return vecmat(v, r)
 
 
-def vee(m: Tensor) -> Tensor:
-    """The vector of a skew-symmetric matrix."""
-    return torch.stack((m[..., 2, 1], m[..., 0, 2], m[..., 1, 0]), -1)
+def vee_antisymmetric(m: Tensor) -> Tensor:
+    """``1/2 vee(m^T - m)`` (``vee`` the vector of a skew-symmetric matrix):
+    ``(m_12 - m_21, m_20 - m_02, m_01 - m_10) / 2``."""
+    return torch.linalg.vecdot(m.flatten(-2).unsqueeze(-1), _tables(m.device, m.dtype).vee_map, dim=-2)
