@@ -11,41 +11,43 @@ from .operands import operands
 
 
 class _Tables(NamedTuple):
-    """The constant maps that let :func:`quat_mul` and :func:`quat_to_rotmat` evaluate their
-    textbook expressions as one broadcast multiply-and-sum over the products of the
-    quaternions' components (a handful of eager ops, not dozens), and the numbers
-    :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for the eager step
-    (:mod:`.operands`)."""
+    """Index and sign tables that let :func:`quat_mul`, :func:`quat_to_rotmat` and
+    :func:`euler_to_rotmat` evaluate their textbook expressions four or nine entries per op (a
+    handful of eager ops, not dozens, and no more arithmetic than the expressions have), and the
+    numbers :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for the eager
+    step (:mod:`.operands`)."""
 
-    mul_map: Tensor  # [16, 4]: the Hamilton product's sign of a_i b_j (row 4 i + j) in each component
-    rotmat_left: Tensor  # [10]: the components whose products q_l q_r make up R
-    rotmat_right: Tensor  # [10]
-    rotmat_map: Tensor  # [10, 3, 3]: each product's weight in each entry of R
-    euler_index: Tensor  # [2 * 3 * 9]: euler_to_rotmat's factors, of (cos, sin) of the angles and 1
+    mul_index: Tensor  # [16]: quat_mul's matrix L(a) (a b = L(a) b), row-major, as components of a
+    mul_sign: Tensor  # [16]: and their signs
+    rotmat_left: Tensor  # [18]: quat_to_rotmat's products q_l q_r, the first of each entry's two
+    rotmat_right: Tensor  # [18]    terms (9), then the second (9)
+    rotmat_sign: Tensor  # [9]: the second term's sign
+    rotmat_minus_diagonal: Tensor  # [9]: -1 on the diagonal
+    euler_index: Tensor  # [2 * 9 * 3]: euler_to_rotmat's factors, of (cos, sin) of the angles and 1
     euler_sign: Tensor  # [2, 9]: the sign of each entry's two products
-    vee_map: Tensor  # [9, 3]: vee_antisymmetric's weights of the entries m_ij (row 3 i + j)
+    vee_map: Tensor  # [3, 9]: vee_antisymmetric's weights of the entries m_ij (column 3 i + j)
     one: Tensor
+    two: Tensor
     inv_pi: Tensor  # quat_integrate: sin(x) / x is torch.sinc(x / pi)
 
 
 _TABLES: dict[tuple[torch.device, torch.dtype], _Tables] = {}
 
-# (w, x, y, z) = 0 .. 3. The Hamilton product's components, as signed terms a_i b_j
+# (w, x, y, z) = 0 .. 3. The Hamilton product a b = L(a) b, row c of L(a) the signed components
+# of a that multiply (bw, bx, by, bz) in component c: w = aw bw - ax bx - ay by - az bz, ...
 _HAMILTON = (
-    ((0, 0, 1), (1, 1, -1), (2, 2, -1), (3, 3, -1)),  # w = aw bw - ax bx - ay by - az bz
-    ((0, 1, 1), (1, 0, 1), (2, 3, 1), (3, 2, -1)),  # x = aw bx + ax bw + ay bz - az by
-    ((0, 2, 1), (1, 3, -1), (2, 0, 1), (3, 1, 1)),  # y = aw by - ax bz + ay bw + az bx
-    ((0, 3, 1), (1, 2, 1), (2, 1, -1), (3, 0, 1)),  # z = aw bz + ax by - ay bx + az bw
+    ((0, 1), (1, -1), (2, -1), (3, -1)),
+    ((1, 1), (0, 1), (3, -1), (2, 1)),
+    ((2, 1), (3, 1), (0, 1), (1, -1)),
+    ((3, 1), (2, -1), (1, 1), (0, 1)),
 )
-# R of a unit quaternion in its homogeneous form, row-major: R_00 = ww + xx - yy - zz,
-# R_01 = 2 (xy - wz), ...; the products are ww, xx, yy, zz, xy, xz, yz, wx, wy, wz
-_ROTMAT_PRODUCTS = ((0, 0), (1, 1), (2, 2), (3, 3), (1, 2), (1, 3), (2, 3), (0, 1), (0, 2), (0, 3))
+# R of a unit quaternion, row-major, each entry 2 (q_a q_b +- q_c q_d), minus 1 on the diagonal
+# (R_00 = 1 - 2 (yy + zz) = 2 (ww + xx) - 1): ((a, b), (c, d), sign)
 _ROTMAT = (
-    ((1, 1, -1, -1, 0, 0, 0, 0, 0, 0), (0, 0, 0, 0, 2, 0, 0, 0, 0, -2), (0, 0, 0, 0, 0, 2, 0, 0, 2, 0)),
-    ((0, 0, 0, 0, 2, 0, 0, 0, 0, 2), (1, -1, 1, -1, 0, 0, 0, 0, 0, 0), (0, 0, 0, 0, 0, 0, 2, -2, 0, 0)),
-    ((0, 0, 0, 0, 0, 2, 0, 0, -2, 0), (0, 0, 0, 0, 0, 0, 2, 2, 0, 0), (1, -1, -1, 1, 0, 0, 0, 0, 0, 0)),
+    ((0, 0), (1, 1), 1), ((1, 2), (0, 3), -1), ((1, 3), (0, 2), 1),
+    ((1, 2), (0, 3), 1), ((0, 0), (2, 2), 1), ((2, 3), (0, 1), -1),
+    ((1, 3), (0, 2), -1), ((2, 3), (0, 1), 1), ((0, 0), (3, 3), 1),
 )
-
 # R = Rz(yaw) Ry(pitch) Rx(roll), row-major, each entry a signed sum of two products of three of
 # (cr, cp, cy, sr, sp, sy, 1) = 0 .. 6: R_00 = cy cp, R_01 = cy sp sr - sy cr, ...; an entry of
 # one product has a second of sign 0
@@ -57,46 +59,45 @@ _EULER = (
 
 
 def _tables(device: torch.device, dtype: torch.dtype) -> _Tables:
-    """The tables on ``device`` in ``dtype``, made once (the simulator's first ones by its eager
-    ``initial``, before any compiled step)."""
+    """The tables on ``device``, signs in ``dtype``, made once (the simulator's first ones by its
+    eager ``initial``, before any compiled step)."""
     key = (device, dtype)
     if key not in _TABLES:
-        mul_map = torch.zeros(16, 4, dtype=dtype)
-        for component, terms in enumerate(_HAMILTON):
-            for i, j, sign in terms:
-                mul_map[4 * i + j, component] = sign
-        rotmat_map = torch.tensor(_ROTMAT, dtype=dtype).permute(2, 0, 1)  # [product, row, column]
-        left, right = zip(*_ROTMAT_PRODUCTS)
+        index = lambda v: torch.tensor(v, device=device)  # noqa: E731
+        sign = lambda v: torch.tensor(v, dtype=dtype, device=device)  # noqa: E731
+        terms = [term for entry in _ROTMAT for term in entry[:2]]
         _TABLES[key] = _Tables(
-            mul_map=mul_map.to(device),
-            rotmat_left=torch.tensor(left, device=device),
-            rotmat_right=torch.tensor(right, device=device),
-            rotmat_map=rotmat_map.contiguous().to(device),
-            # [product, factor, entry], flattened
-            euler_index=torch.tensor([[[_EULER[e][t][0][f] for e in range(9)] for f in range(3)] for t in range(2)],
-                                     device=device).flatten(),
-            euler_sign=torch.tensor([[_EULER[e][t][1] for e in range(9)] for t in range(2)], dtype=dtype, device=device),
-            vee_map=torch.tensor([[0, 0, 0], [0, 0, 0.5], [0, -0.5, 0], [0, 0, -0.5], [0, 0, 0], [0.5, 0, 0],
-                                  [0, 0.5, 0], [-0.5, 0, 0], [0, 0, 0]], dtype=dtype, device=device),
-            one=torch.tensor(1.0, dtype=dtype, device=device),
-            inv_pi=torch.tensor(1.0 / math.pi, dtype=dtype, device=device),
+            mul_index=index([i for row in _HAMILTON for i, _ in row]),
+            mul_sign=sign([float(s) for row in _HAMILTON for _, s in row]),
+            rotmat_left=index([t[0] for t in terms[0::2] + terms[1::2]]),
+            rotmat_right=index([t[1] for t in terms[0::2] + terms[1::2]]),
+            rotmat_sign=sign([float(e[2]) for e in _ROTMAT]),
+            rotmat_minus_diagonal=sign([-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0]),
+            # [product, entry, factor], flattened
+            euler_index=index([_EULER[e][t][0][f] for t in range(2) for e in range(9) for f in range(3)]),
+            euler_sign=sign([[float(_EULER[e][t][1]) for e in range(9)] for t in range(2)]),
+            vee_map=sign([[0, 0, 0, 0, 0, 0.5, 0, -0.5, 0], [0, 0, -0.5, 0, 0, 0, 0.5, 0, 0],
+                          [0, 0.5, 0, -0.5, 0, 0, 0, 0, 0]]),
+            one=sign(1.0),
+            two=sign(2.0),
+            inv_pi=sign(1.0 / math.pi),
         )
     return _TABLES[key]
 
 
 def quat_mul(a: Tensor, b: Tensor) -> Tensor:
-    """The Hamilton product (``w = aw bw - ax bx - ay by - az bz``, ...): the products
-    ``a_i b_j`` weighted by their signs in each component and summed."""
-    outer = a.unsqueeze(-1) * b.unsqueeze(-2)
-    return torch.linalg.vecdot(outer.reshape(*outer.shape[:-2], 16, 1), _tables(a.device, a.dtype).mul_map, dim=-2)
+    """The Hamilton product (``w = aw bw - ax bx - ay by - az bz``, ...), as ``L(a) b``."""
+    t = _tables(a.device, a.dtype)
+    left = (a.index_select(-1, t.mul_index) * t.mul_sign).unflatten(-1, (4, 4))
+    return torch.linalg.vecdot(left, b.unsqueeze(-2))
 
 
 def quat_to_rotmat(q: Tensor) -> Tensor:
     """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body`` of a unit quaternion; its
     columns are the body axes."""
     t = _tables(q.device, q.dtype)
-    products = q.index_select(-1, t.rotmat_left) * q.index_select(-1, t.rotmat_right)
-    return torch.linalg.vecdot(products.reshape(*products.shape[:-1], 10, 1, 1), t.rotmat_map, dim=-3)
+    first, second = (q.index_select(-1, t.rotmat_left) * q.index_select(-1, t.rotmat_right)).unflatten(-1, (2, 9)).unbind(-2)
+    return torch.addcmul(t.rotmat_minus_diagonal, torch.addcmul(first, second, t.rotmat_sign), t.two).unflatten(-1, (3, 3))
 
 
 def body_z_vertical(q: Tensor) -> Tensor:
@@ -129,7 +130,7 @@ def euler_to_rotmat(angles: Tensor) -> Tensor:
     radians), ``quat_to_rotmat(quat_from_euler(roll, pitch, yaw))`` without the quaternion."""
     t = _tables(angles.device, angles.dtype)
     factors = torch.cat((torch.cos(angles), torch.sin(angles), t.one.expand(*angles.shape[:-1], 1)), -1)
-    products = factors.index_select(-1, t.euler_index).unflatten(-1, (2, 3, 9)).prod(-2)
+    products = factors.index_select(-1, t.euler_index).unflatten(-1, (2, 9, 3)).prod(-1)
     return torch.linalg.vecdot(products, t.euler_sign, dim=-2).unflatten(-1, (3, 3))
 
 
@@ -205,4 +206,4 @@ def rotate_inverse(r: Tensor, v: Tensor) -> Tensor:
 def vee_antisymmetric(m: Tensor) -> Tensor:
     """``1/2 vee(m^T - m)`` (``vee`` the vector of a skew-symmetric matrix):
     ``(m_12 - m_21, m_20 - m_02, m_01 - m_10) / 2``."""
-    return torch.linalg.vecdot(m.flatten(-2).unsqueeze(-1), _tables(m.device, m.dtype).vee_map, dim=-2)
+    return torch.linalg.vecdot(m.flatten(-2).unsqueeze(-2), _tables(m.device, m.dtype).vee_map)

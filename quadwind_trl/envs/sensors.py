@@ -209,23 +209,17 @@ class SensorSuite:
             tick = tick | force
         bias = entry(state, "bias")
         imu_sum = None
-        if imu_truth_sub is None:
-            draws = keyed_normal(entry(params, "noise_key"), step, 2 * _NUM_CHANNELS)
-        else:
-            # the IMU's intermediate samples, in time order, each with its own noise and bias step;
-            # its stream drawn beside the channels' one, in one draw of the longer one's width
+        if imu_truth_sub is not None:
+            # the IMU's intermediate samples, in time order, each with its own noise and bias step
             imu_truth = pack_channels(imu_truth_sub, _IMU_NAMES)
             sub = imu_truth.shape[-2]
-            width = max(2 * _NUM_CHANNELS, 2 * _NUM_IMU * sub)
-            keys = torch.stack((entry(params, "noise_key"), entry(params, "imu_noise_key")), -1)
-            channels_draws, imu_draws = keyed_normal(keys, step.unsqueeze(-1), width).unbind(-2)
-            draws = imu_draws[..., : 2 * _NUM_IMU * sub].unflatten(-1, (sub, 2 * _NUM_IMU))
+            draws = keyed_normal(entry(params, "imu_noise_key"), step, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
             imu_bias, imu_sum = bias[..., _IMU], 0.0
             for j in range(sub):
                 imu_bias = self.bias_decay[_IMU] * imu_bias + self.bias_step_std[_IMU] * draws[..., j, _NUM_IMU:]
                 imu_sum = imu_sum + imu_truth[..., j, :] + imu_bias + self.noise_std[_IMU] * draws[..., j, :_NUM_IMU]
             bias = torch.cat((bias[..., : _IMU.start], imu_bias, bias[..., _IMU.stop :]), -1)
-            draws = channels_draws[..., : 2 * _NUM_CHANNELS]
+        draws = keyed_normal(entry(params, "noise_key"), step, 2 * _NUM_CHANNELS)
         stepped = self.bias_decay * bias + self.bias_step_std * draws[..., _NUM_CHANNELS:]
         bias = torch.where(tick, stepped, bias)
         sample = truth_packed + bias + self.noise_std * draws[..., :_NUM_CHANNELS]
