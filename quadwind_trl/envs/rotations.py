@@ -96,8 +96,10 @@ def quat_to_rotmat(q: Tensor) -> Tensor:
     """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body`` of a unit quaternion; its
     columns are the body axes."""
     t = _tables(q.device, q.dtype)
-    first, second = (q.index_select(-1, t.rotmat_left) * q.index_select(-1, t.rotmat_right)).unflatten(-1, (2, 9)).unbind(-2)
-    return torch.addcmul(t.rotmat_minus_diagonal, torch.addcmul(first, second, t.rotmat_sign), t.two).unflatten(-1, (3, 3))
+    products = q.index_select(-1, t.rotmat_left) * q.index_select(-1, t.rotmat_right)
+    first, second = products.unflatten(-1, (2, 9)).unbind(-2)
+    entries = torch.addcmul(t.rotmat_minus_diagonal, torch.addcmul(first, second, t.rotmat_sign), t.two)
+    return entries.unflatten(-1, (3, 3))
 
 
 def body_z_vertical(q: Tensor) -> Tensor:

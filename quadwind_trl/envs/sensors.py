@@ -213,7 +213,8 @@ class SensorSuite:
             # the IMU's intermediate samples, in time order, each with its own noise and bias step
             imu_truth = pack_channels(imu_truth_sub, _IMU_NAMES)
             sub = imu_truth.shape[-2]
-            draws = keyed_normal(entry(params, "imu_noise_key"), step, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
+            draws = keyed_normal(entry(params, "imu_noise_key"), step, 2 * _NUM_IMU * sub)
+            draws = draws.unflatten(-1, (sub, 2 * _NUM_IMU))
             imu_bias, imu_sum = bias[..., _IMU], 0.0
             for j in range(sub):
                 imu_bias = self.bias_decay[_IMU] * imu_bias + self.bias_step_std[_IMU] * draws[..., j, _NUM_IMU:]

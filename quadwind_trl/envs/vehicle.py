@@ -188,7 +188,8 @@ def rotor_thrust_coefficient(air_rel_body: Tensor, rotor_speed: Tensor, o: Rotor
     # the ratio multiplies k_T omega^2, so a stopped rotor makes no thrust; the floor keeps it finite
     per_tip_speed = (rotor_speed * o.radius).clamp_min(1.0).reciprocal()
     climb = (air_rel_body[..., 2:] * per_tip_speed).clamp_min(o.descent_limit)
-    mu2 = (air_rel_body[..., :2].square().sum(-1, keepdim=True) * per_tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
+    edgewise = air_rel_body[..., :2].square().sum(-1, keepdim=True)
+    mu2 = (edgewise * per_tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
     ct_blade = torch.addcmul(o.blade_ct, mu2, o.blade_ct_advance)  # C_T before the inflow term
     # the start: the axial-flow solution, exact at mu = 0, where the two equations are the
     # quadratic 2 lambda^2 + (s/2 - 2 lambda_c) lambda - C_T,blade = 0 (its positive root)
