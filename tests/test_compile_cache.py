@@ -5,6 +5,7 @@ import _ctypes
 import os
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import pytest
@@ -87,16 +88,22 @@ def test_a_library_cut_short_is_seen_from_its_header(tmp_path):
 
 
 @linux_only
-def test_the_first_compile_finds_no_truncated_library(tmp_path, monkeypatch):
-    """Pointing inductor at the cache deletes the truncated libraries there (an old one: a
-    compile killed while writing it), and keeps the whole ones and those being written."""
+def test_a_folder_holding_a_truncated_library_is_discarded_before_the_first_compile(tmp_path, monkeypatch):
+    """Pointing inductor at the cache keeps a folder of whole libraries and of libraries being
+    written; one holding an old truncated library (a compile killed while writing it) is
+    discarded whole, with a warning, and made again empty."""
     monkeypatch.setenv(compile_cache.COMPILE_CACHE_ENV, str(tmp_path))
     monkeypatch.setenv("TORCHINDUCTOR_CACHE_DIR", "unchanged")  # restored after the test
     folder = compile_cache.compile_cache_dir()
-    whole, old_cut, fresh_cut = (_aged(_library(folder / "ab" / "whole.so")),
-                                 _aged(_library(folder / "cd" / "cut.so", 4096)), _library(folder / "ef" / "new.so", 4096))
-    assert compile_cache.use_compile_cache() == folder and os.environ["TORCHINDUCTOR_CACHE_DIR"] == str(folder)
-    assert whole.exists() and not old_cut.exists() and fresh_cut.exists()
+    whole, being_written = _aged(_library(folder / "ab" / "whole.so")), _library(folder / "ef" / "new.so", 4096)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing to say
+        assert compile_cache.use_compile_cache() == folder and os.environ["TORCHINDUCTOR_CACHE_DIR"] == str(folder)
+    assert whole.exists() and being_written.exists()
+    _aged(_library(folder / "cd" / "cut.so", 4096))
+    with pytest.warns(RuntimeWarning, match="1 truncated library .*cd/cut.so.*discarded"):
+        assert compile_cache.use_compile_cache() == folder
+    assert folder.is_dir() and not any(folder.iterdir()) and not list(tmp_path.glob("*.discarded-*"))
 
 
 def test_a_failure_naming_no_file_discards_the_whole_folder(tmp_path, monkeypatch):

@@ -57,7 +57,7 @@ from torch import Tensor
 from ..config import TurbulenceConfig, WindProfileConfig
 from .counter_rng import hash_bits, hash_normal, hash_uniform
 from .rotations import quat_to_rotmat
-from .tensordicts import unchecked
+from .tensordicts import entry, unchecked
 from .trajectories import fixed_altitude_mask
 
 VON_KARMAN_KE_L = 0.746834  # k_e L: peak wavenumber of the von Karman energy spectrum
@@ -240,9 +240,9 @@ class Atmosphere:
         # (zc / z_ref) ** alpha written as exp(alpha log(.)): torch's CPU pow (and atan2) round
         # differently in the vectorised body and the scalar tail of a kernel, which made a row's
         # wind depend on the batch size; exp and log do not (tests/test_atmosphere.py)
-        speed = params["wind_speed_ref"] * torch.exp(params["shear_alpha"] * torch.log(zc / z_ref))
+        speed = entry(params, "wind_speed_ref") * torch.exp(entry(params, "shear_alpha") * torch.log(zc / z_ref))
         speed = speed.clamp_max(self.wind.max_horizontal_wind_m_s)
-        wind_from = params["wind_from0"] + params["veer_rad_per_m"] * (zc - z_ref)
+        wind_from = entry(params, "wind_from0") + entry(params, "veer_rad_per_m") * (zc - z_ref)
         return speed, wind_from
 
     def mean_wind(self, params: TensorDict, z: Tensor) -> Tensor:
@@ -261,7 +261,7 @@ class Atmosphere:
         kernels (and summation orders) by the batch size, which made a row's wind depend on how
         many rows shared its batch (tests/test_atmosphere.py).
         """
-        m_in, m_out = params["field_in"], params["field_out"]
+        m_in, m_out = entry(params, "field_in"), entry(params, "field_out")
         x, y, z = field_pos[..., 0], field_pos[..., 1], field_pos[..., 2]
         if self.cube_bank is not None:
             local = [x * m_in[..., c, 0] + y * m_in[..., c, 1] + z * m_in[..., c, 2] + params["cube_offset"][..., c] for c in range(3)]
@@ -272,12 +272,12 @@ class Atmosphere:
         # recomputed each row's rotation for every mode). The three components of each matrix
         # product at once: the same operations on every element, a third of the eager ops
         local = x.unsqueeze(-1) * m_in[..., 0] + y.unsqueeze(-1) * m_in[..., 1] + z.unsqueeze(-1) * m_in[..., 2]
-        scaled = local.unsqueeze(-2) * params["k_scale"].unsqueeze(-1)
+        scaled = local.unsqueeze(-2) * entry(params, "k_scale").unsqueeze(-1)
         w = self.wavevector
         # theta = phase + sum_c scaled_c kappa_m d_mc: the operations and order of the per-mode
         # form, so the same bits eager and compiled
-        theta = params["phase"] + scaled[..., 0] * w[:, 0] + scaled[..., 1] * w[:, 1] + scaled[..., 2] * w[:, 2]
-        modes = torch.cos(theta) * params["amplitude"]
+        theta = entry(params, "phase") + scaled[..., 0] * w[:, 0] + scaled[..., 1] * w[:, 1] + scaled[..., 2] * w[:, 2]
+        modes = torch.cos(theta) * entry(params, "amplitude")
         bx, by, bz = ((modes * self._velocity_dir_t[c]).sum(-1, keepdim=True) for c in range(3))  # skeleton frame
         return m_out[..., 0] * bx + m_out[..., 1] * by + m_out[..., 2] * bz
 
@@ -319,7 +319,7 @@ class Atmosphere:
         z_ref = self.wind.reference_height_m
         speed = torch.sqrt(mean[..., 0] * mean[..., 0] + mean[..., 1] * mean[..., 1])
         decay = torch.exp(-self.turbulence.intensity_altitude_exponent * torch.log(z.clamp_min(z_ref) / z_ref))
-        return (params["intensity"] * speed * decay).unsqueeze(-1) * params["ratios"]
+        return (entry(params, "intensity") * speed * decay).unsqueeze(-1) * entry(params, "ratios")
 
     def sample(self, params: TensorDict, state: TensorDict, pos: Tensor, dt: float) -> tuple[Tensor, Tensor, TensorDict]:
         """Mean and total wind ``[N, 3]`` at ``pos``; the state advected by ``dt`` seconds.
@@ -330,7 +330,7 @@ class Atmosphere:
         z = pos[..., 2]
         mean = self.mean_wind(params, z)
         total = mean
-        field_pos = pos - state["air_offset"]
+        field_pos = pos - entry(state, "air_offset")
         if self.turbulence.enabled and self.turbulence.anisotropy == "stretch":
             sigma_u = self.turbulence_sigma(params, mean, z)[..., :1]
             total = mean + sigma_u * self.unit_gust(params, field_pos)
@@ -338,7 +338,7 @@ class Atmosphere:
             total = mean + self._locally_scaled_gust(params, field_pos, mean, z)
         if self.wind.cap_applies_to == "total":
             total = _cap_horizontal(total, self.wind.max_horizontal_wind_m_s)
-        state = unchecked(state.batch_size, dict(air_offset=state["air_offset"] + dt * mean))
+        state = unchecked(state.batch_size, dict(air_offset=entry(state, "air_offset") + dt * mean))
         return mean, total, state
 
     def _locally_scaled_gust(self, params: TensorDict, field_pos: Tensor, mean: Tensor, z: Tensor) -> Tensor:

@@ -8,13 +8,16 @@ is deleted and compiled again, never loaded:
 
 * before the process's first compile, every library in the folder is checked for truncation
   (:func:`truncated_libraries`: an ELF file ends with its section table, so one cut short is seen
-  from its header) and the truncated ones are deleted;
+  from its header); where one is, nothing in the folder is trusted and it is discarded (moved
+  aside first, an atomic rename, so that another process never reads a half-deleted folder).
+  Rebuilding the cut libraries alone is not safe: with every file of the folder cut, inductor's
+  probes of the vector instructions, rebuilt from their cut sources, failed, and the kernels were
+  compiled for another instruction set and flew other bits (docs/benchmarks.md);
 * a compile that fails anyway (:func:`discard_broken_entry`) deletes the file its error names, or,
-  where it names none, the whole folder (moved aside first, an atomic rename, so that another
-  process never reads a half-deleted folder), and the caller compiles once more.
+  where it names none, the whole folder, and the caller compiles once more.
 
-Both delete as little as they can, because another process may be compiling into the same folder:
-a library written right now (younger than :data:`WRITE_GRACE_S`) is not judged.
+A library written in the last :data:`WRITE_GRACE_S` seconds is not judged: another process may be
+compiling it right now.
 """
 from __future__ import annotations
 
@@ -25,6 +28,7 @@ import shutil
 import struct
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from ..cache import cache_dir
@@ -62,18 +66,35 @@ def compile_cache_dir() -> Path:
 
 
 def use_compile_cache() -> Path:
-    """Point inductor's caches at :func:`compile_cache_dir` (made if missing), its truncated
-    libraries deleted first (:func:`truncated_libraries`)."""
+    """Point inductor's caches at :func:`compile_cache_dir` (made if missing), discarded first if
+    it holds a truncated library (:func:`truncated_libraries`; with a warning)."""
     folder = compile_cache_dir()
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise OSError(f"compile cache folder {folder} cannot be made ({error.strerror}); set {COMPILE_CACHE_ENV} "
                       "to a writable folder") from error
-    for library in truncated_libraries(folder):
-        library.unlink(missing_ok=True)
+    truncated = truncated_libraries(folder)
+    if truncated:
+        _discard_folder(folder)
+        warnings.warn(f"the compile cache {folder} held {len(truncated)} truncated librar"
+                      f"{'y' if len(truncated) == 1 else 'ies'} (a compile killed while writing, a full disk), "
+                      f"e.g. {truncated[0].relative_to(folder)}: it was discarded and is compiled afresh",
+                      RuntimeWarning, stacklevel=3)
+        folder.mkdir(parents=True, exist_ok=True)
     os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(folder)
     return folder
+
+
+def _discard_folder(folder: Path) -> None:
+    """Delete ``folder``, moved aside first (an atomic rename) so that another process never reads
+    it half-deleted: it keeps the files it has open and finds the folder's path empty."""
+    stale = folder.with_name(f"{folder.name}.discarded-{os.getpid()}-{time.time_ns()}")
+    try:
+        folder.rename(stale)
+    except FileNotFoundError:  # another process discarded it first
+        return
+    shutil.rmtree(stale, ignore_errors=True)
 
 
 def _is_truncated_elf(path: Path) -> bool:
@@ -119,8 +140,9 @@ def _named_file(error: BaseException, folder: Path) -> Path | None:
 
 def discard_broken_entry(error: BaseException) -> Path:
     """After a compile failed with ``error``, delete what broke it from the cache: the file under
-    :func:`compile_cache_dir` that the error names, else the whole folder (moved aside, then
-    deleted); and forget what inductor loaded in this process. Returns what was deleted."""
+    :func:`compile_cache_dir` that the error names (another process may be compiling into the
+    folder: deleting less spares its work), else the whole folder; and forget what inductor loaded
+    in this process. Returns what was deleted."""
     from torch._inductor.utils import clear_caches
 
     folder = compile_cache_dir()
@@ -128,12 +150,7 @@ def discard_broken_entry(error: BaseException) -> Path:
     if named is not None:
         named.unlink(missing_ok=True)
     else:
-        stale = folder.with_name(f"{folder.name}.discarded-{os.getpid()}-{time.time_ns()}")
-        try:
-            folder.rename(stale)
-        except FileNotFoundError:  # another process discarded it first
-            pass
-        shutil.rmtree(stale, ignore_errors=True)
+        _discard_folder(folder)
     clear_caches()
     use_compile_cache()
     return named or folder

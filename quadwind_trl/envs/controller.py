@@ -74,7 +74,7 @@ from tensordict import TensorDict
 
 from ..config import GRAVITY_M_S2, ControllerConfig, VehicleConfig
 from .operands import operands
-from .rotations import matmul, matvec, norm, vee
+from .rotations import matvec, norm, transpose_matmul, vee_antisymmetric
 from .tensordicts import unchecked
 from .trajectories.library import Reference
 from .vehicle import VehicleParams, drag_force_body
@@ -88,7 +88,6 @@ class PDOperands(NamedTuple):
     tan_max_tilt: Tensor | float
     mass: Tensor | float
     one: Tensor | float
-    half: Tensor | float
 
 
 @dataclass
@@ -107,7 +106,7 @@ class ControllerParams:
     operands: PDOperands = field(init=False, repr=False)
 
     def __post_init__(self):
-        self.numbers = PDOperands(gravity=GRAVITY_M_S2, tan_max_tilt=self.tan_max_tilt, mass=self.mass, one=1.0, half=0.5)
+        self.numbers = PDOperands(gravity=GRAVITY_M_S2, tan_max_tilt=self.tan_max_tilt, mass=self.mass, one=1.0)
         self.operands = PDOperands(*(torch.tensor(v, dtype=torch.float32, device=self.kp.device) for v in self.numbers))
 
     @classmethod
@@ -191,7 +190,7 @@ def pd_control(
     added to the outer loop's desired acceleration before the tilt limit (None: the paper's PD)."""
     k = operands(p.operands, p.numbers)
     pos_err = torch.maximum(torch.minimum(pos - ref_pos, p.pos_error_limit), -p.pos_error_limit)
-    acc_des = -p.kp * pos_err - p.kd * (vel - ref_vel) + ref_acc
+    acc_des = torch.addcmul(torch.addcmul(ref_acc, p.kp, pos_err, value=-1.0), p.kd, vel - ref_vel, value=-1.0)
     if acc_extra is not None:  # a config constant: the PD alone runs exactly the paper's ops
         acc_des = acc_des + acc_extra
     acc_z = (acc_des[..., 2:] + k.gravity).clamp_min(0.05 * GRAVITY_M_S2)
@@ -213,8 +212,8 @@ def pd_control(
     rot_des = torch.stack((b1_des, b2_des, b3_des), -1)
 
     # Angular-velocity feedforward from the reference jerk (flatness), in the desired body frame.
-    # m / |f| as 1 / |f| times m: what a Python number over a tensor computes
-    h_w = (force_norm.reciprocal() * k.mass) * (ref_jerk - (ref_jerk * b3_des).sum(-1, keepdim=True) * b3_des)
+    jerk_across = torch.addcmul(ref_jerk, (ref_jerk * b3_des).sum(-1, keepdim=True), b3_des, value=-1.0)
+    h_w = jerk_across * (k.mass / force_norm)
     omega_des = torch.cat(
         (
             -(h_w * b2_des).sum(-1, keepdim=True),
@@ -223,10 +222,11 @@ def pd_control(
         ),
         -1,
     )
-    rel = matmul(rot.transpose(-1, -2), rot_des)
-    err_rot = k.half * vee(rel.transpose(-1, -2) - rel)
+    rel = transpose_matmul(rot, rot_des)
+    err_rot = vee_antisymmetric(rel)
     err_rate = omega - matvec(rel, omega_des)
-    torque = -p.k_att * err_rot - p.k_rate * err_rate + torch.linalg.cross(omega, p.inertia * omega)
+    torque = torch.addcmul(torch.addcmul(torch.linalg.cross(omega, p.inertia * omega), p.k_att, err_rot, value=-1.0),
+                           p.k_rate, err_rate, value=-1.0)
 
     tilt_cmd = torch.acos((b3_des[..., 2:]).clamp(-1.0, 1.0))
     return PDOutput(torch.cat((thrust, torque), -1), tilt_cmd, tilt_saturated)

@@ -19,8 +19,8 @@ from tensordict import TensorDict
 from torch import Tensor
 
 from ..config import GRAVITY_M_S2, NavigationConfig
-from .rotations import quat_from_euler, quat_to_rotmat, rotate
-from .tensordicts import unchecked
+from .rotations import euler_to_rotmat, rotate
+from .tensordicts import entry, unchecked
 
 
 @dataclass
@@ -61,14 +61,14 @@ def update_navigation(
     accelerometer samples of the step, averaged), then correct with the sensors (``meas``: their
     named entries) that ticked (bool ``[N, 1]`` masks). ``rot``: the measured attitude's rotation
     matrix, if the caller has it already (it is computed from ``meas`` otherwise)."""
-    gps_pos, gps_vel, baro = meas["gps_pos"], meas["gps_vel"], meas["baro_alt"]
+    gps_pos, gps_vel, baro = entry(meas, "gps_pos"), entry(meas, "gps_vel"), entry(meas, "baro_alt")
     if rot is None:
-        rot = quat_to_rotmat(quat_from_euler(*meas["attitude"].unbind(-1)))
+        rot = euler_to_rotmat(entry(meas, "attitude"))
     acc = rotate(rot, accel_mean) - accel_mean.new_tensor([0.0, 0.0, GRAVITY_M_S2])
-    vel = nav["vel"] + dt * acc
-    pos = nav["pos"] + dt * vel
+    vel = entry(nav, "vel") + dt * acc
+    pos = entry(nav, "pos") + dt * vel
     pos_xy = torch.where(gps_tick, pos[..., :2] + p.pos_gain * (gps_pos[..., :2] - pos[..., :2]), pos[..., :2])
-    pos_z, offset = pos[..., 2:], nav["baro_offset"]
+    pos_z, offset = pos[..., 2:], entry(nav, "baro_offset")
     if p.gnss_height:
         offset = torch.where(baro_tick, offset + p.baro_offset_gain * (baro - pos_z - offset), offset)
         pos_z = torch.where(baro_tick, pos_z + p.alt_gain * (baro - offset - pos_z), pos_z)

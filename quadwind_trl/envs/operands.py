@@ -8,15 +8,13 @@ Traced, the two are not alike: inductor writes a number into its kernels as a li
 a tensor one more kernel input, and a graph with other inputs is fused and vectorised
 differently. A sine or cosine that moves between a vectorised loop and a scalar one rounds
 differently in its last bit, so the compiled step would no longer re-fly the results recorded
-with it. What is traced therefore stays the graph the step always had: the numbers, and the
-two-op forms :func:`sub_div` and :func:`add_div` replace eagerly.
+with it. What is traced therefore keeps the numbers.
 """
 from __future__ import annotations
 
 from typing import TypeVar
 
 import torch
-from torch import Tensor
 
 T = TypeVar("T")
 
@@ -30,14 +28,3 @@ def operands(eager: T, traced: T) -> T:
     """``eager`` (tensors made once) when running eagerly, ``traced`` (the same numbers as Python
     numbers) while traced."""
     return traced if tracing() else eager
-
-
-def sub_div(a: Tensor, b: Tensor, c: Tensor) -> Tensor:
-    """``a - b / c``: eagerly one op, ``addcdiv`` (``a + (-1 b) / c``: negation is exact, the same
-    bits); traced, the two ops."""
-    return a - b / c if tracing() else torch.addcdiv(a, b, c, value=-1)
-
-
-def add_div(a: Tensor, b: Tensor, c: Tensor) -> Tensor:
-    """``a + b / c``: eagerly one op, ``addcdiv`` (the same bits); traced, the two ops."""
-    return a + b / c if tracing() else torch.addcdiv(a, b, c)

@@ -11,24 +11,51 @@ from .operands import operands
 
 
 class _Tables(NamedTuple):
-    """Index and sign tables that let :func:`quat_mul` and :func:`quat_to_rotmat` evaluate their
-    textbook expressions four or nine entries per operation, with the same roundings (``a - b``
-    is ``a + (-1) b`` and ``2 s`` is ``s + s``, exactly): a dozen eager ops instead of thirty;
-    and the numbers :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for
-    the eager step (:mod:`.operands`)."""
+    """Index and sign tables that let :func:`quat_mul`, :func:`quat_to_rotmat` and
+    :func:`euler_to_rotmat` evaluate their textbook expressions four or nine entries per op (a
+    handful of eager ops, not dozens, and no more arithmetic than the expressions have), and the
+    numbers :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for the eager
+    step (:mod:`.operands`)."""
 
-    mul_index: Tensor  # quat_mul: terms 1-3 of each component in the outer product a b^T
-    mul_sign: Tensor
-    rotmat_a: Tensor  # quat_to_rotmat: R_ij = 2 (P[a] + sign P[b]) (1 minus that on the
-    rotmat_b: Tensor  # diagonal), P the outer product q q^T
-    rotmat_sign: Tensor
-    diagonal: Tensor
+    mul_index: Tensor  # [16]: quat_mul's matrix L(a) (a b = L(a) b), row-major, as components of a
+    mul_sign: Tensor  # [16]: and their signs
+    rotmat_left: Tensor  # [18]: quat_to_rotmat's products q_l q_r, the first of each entry's two
+    rotmat_right: Tensor  # [18]    terms (9), then the second (9)
+    rotmat_sign: Tensor  # [9]: the second term's sign
+    rotmat_minus_diagonal: Tensor  # [9]: -1 on the diagonal
+    euler_index: Tensor  # [2 * 9 * 3]: euler_to_rotmat's factors, of (cos, sin) of the angles and 1
+    euler_sign: Tensor  # [2, 9]: the sign of each entry's two products
+    vee_map: Tensor  # [3, 9]: vee_antisymmetric's weights of the entries m_ij (column 3 i + j)
     one: Tensor
-    sinc_series_below: Tensor  # quat_integrate: the angle below which sin(x)/x is its Taylor series
-    six: Tensor
+    two: Tensor
+    inv_pi: Tensor  # quat_integrate: sin(x) / x is torch.sinc(x / pi)
 
 
 _TABLES: dict[tuple[torch.device, torch.dtype], _Tables] = {}
+
+# (w, x, y, z) = 0 .. 3. The Hamilton product a b = L(a) b, row c of L(a) the signed components
+# of a that multiply (bw, bx, by, bz) in component c: w = aw bw - ax bx - ay by - az bz, ...
+_HAMILTON = (
+    ((0, 1), (1, -1), (2, -1), (3, -1)),
+    ((1, 1), (0, 1), (3, -1), (2, 1)),
+    ((2, 1), (3, 1), (0, 1), (1, -1)),
+    ((3, 1), (2, -1), (1, 1), (0, 1)),
+)
+# R of a unit quaternion, row-major, each entry 2 (q_a q_b +- q_c q_d), minus 1 on the diagonal
+# (R_00 = 1 - 2 (yy + zz) = 2 (ww + xx) - 1): ((a, b), (c, d), sign)
+_ROTMAT = (
+    ((0, 0), (1, 1), 1), ((1, 2), (0, 3), -1), ((1, 3), (0, 2), 1),
+    ((1, 2), (0, 3), 1), ((0, 0), (2, 2), 1), ((2, 3), (0, 1), -1),
+    ((1, 3), (0, 2), -1), ((2, 3), (0, 1), 1), ((0, 0), (3, 3), 1),
+)
+# R = Rz(yaw) Ry(pitch) Rx(roll), row-major, each entry a signed sum of two products of three of
+# (cr, cp, cy, sr, sp, sy, 1) = 0 .. 6: R_00 = cy cp, R_01 = cy sp sr - sy cr, ...; an entry of
+# one product has a second of sign 0
+_EULER = (
+    (((2, 1, 6), 1), ((6, 6, 6), 0)), (((2, 4, 3), 1), ((5, 0, 6), -1)), (((2, 4, 0), 1), ((5, 3, 6), 1)),
+    (((5, 1, 6), 1), ((6, 6, 6), 0)), (((5, 4, 3), 1), ((2, 0, 6), 1)), (((5, 4, 0), 1), ((2, 3, 6), -1)),
+    (((4, 6, 6), -1), ((6, 6, 6), 0)), (((1, 3, 6), 1), ((6, 6, 6), 0)), (((1, 0, 6), 1), ((6, 6, 6), 0)),
+)
 
 
 def _tables(device: torch.device, dtype: torch.dtype) -> _Tables:
@@ -38,43 +65,46 @@ def _tables(device: torch.device, dtype: torch.dtype) -> _Tables:
     if key not in _TABLES:
         index = lambda v: torch.tensor(v, device=device)  # noqa: E731
         sign = lambda v: torch.tensor(v, dtype=dtype, device=device)  # noqa: E731
-        # flattened outer products, (w, x, y, z) = 0 .. 3: entry 4 i + j is a_i b_j
+        terms = [term for entry in _ROTMAT for term in entry[:2]]
         _TABLES[key] = _Tables(
-            mul_index=index([5, 4, 7, 6, 10, 11, 8, 9, 15, 14, 13, 12]),
-            mul_sign=sign([-1.0, 1.0, -1.0, 1.0, -1.0, 1.0, 1.0, -1.0, -1.0, -1.0, 1.0, 1.0]),
-            # R_00 = 1 - 2 (yy + zz), R_01 = 2 (xy - wz), ...: row-major
-            rotmat_a=index([10, 6, 7, 6, 5, 11, 7, 11, 5]),
-            rotmat_b=index([15, 3, 2, 3, 15, 1, 2, 1, 10]),
-            rotmat_sign=sign([1.0, -1.0, 1.0, 1.0, 1.0, -1.0, -1.0, 1.0, 1.0]),
-            diagonal=index([True, False, False, False, True, False, False, False, True]),
+            mul_index=index([i for row in _HAMILTON for i, _ in row]),
+            mul_sign=sign([float(s) for row in _HAMILTON for _, s in row]),
+            rotmat_left=index([t[0] for t in terms[0::2] + terms[1::2]]),
+            rotmat_right=index([t[1] for t in terms[0::2] + terms[1::2]]),
+            rotmat_sign=sign([float(e[2]) for e in _ROTMAT]),
+            rotmat_minus_diagonal=sign([-1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0]),
+            # [product, entry, factor], flattened
+            euler_index=index([_EULER[e][t][0][f] for t in range(2) for e in range(9) for f in range(3)]),
+            euler_sign=sign([[float(_EULER[e][t][1]) for e in range(9)] for t in range(2)]),
+            vee_map=sign([[0, 0, 0, 0, 0, 0.5, 0, -0.5, 0], [0, 0, -0.5, 0, 0, 0, 0.5, 0, 0],
+                          [0, 0.5, 0, -0.5, 0, 0, 0, 0, 0]]),
             one=sign(1.0),
-            sinc_series_below=sign(1e-4),
-            six=sign(6.0),
+            two=sign(2.0),
+            inv_pi=sign(1.0 / math.pi),
         )
     return _TABLES[key]
 
 
 def quat_mul(a: Tensor, b: Tensor) -> Tensor:
-    """The Hamilton product, each component ``a_w b_. + term1 + term2 + term3`` summed in that
-    order (``w = aw bw - ax bx - ay by - az bz``, ...)."""
+    """The Hamilton product (``w = aw bw - ax bx - ay by - az bz``, ...), as ``L(a) b``."""
     t = _tables(a.device, a.dtype)
-    outer = a.unsqueeze(-1) * b.unsqueeze(-2)
-    term1, term2, term3 = (outer.flatten(-2).index_select(-1, t.mul_index) * t.mul_sign).unflatten(-1, (3, 4)).unbind(-2)
-    return ((outer[..., 0, :] + term1) + term2) + term3
+    left = (a.index_select(-1, t.mul_index) * t.mul_sign).unflatten(-1, (4, 4))
+    return torch.linalg.vecdot(left, b.unsqueeze(-2))
 
 
 def quat_to_rotmat(q: Tensor) -> Tensor:
-    """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body``; its columns are the body axes."""
+    """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body`` of a unit quaternion; its
+    columns are the body axes."""
     t = _tables(q.device, q.dtype)
-    products = (q.unsqueeze(-1) * q.unsqueeze(-2)).flatten(-2)
-    half = products.index_select(-1, t.rotmat_a) + products.index_select(-1, t.rotmat_b) * t.rotmat_sign
-    twice = half + half
-    return torch.where(t.diagonal, t.one - twice, twice).unflatten(-1, (3, 3))
+    products = q.index_select(-1, t.rotmat_left) * q.index_select(-1, t.rotmat_right)
+    first, second = products.unflatten(-1, (2, 9)).unbind(-2)
+    entries = torch.addcmul(t.rotmat_minus_diagonal, torch.addcmul(first, second, t.rotmat_sign), t.two)
+    return entries.unflatten(-1, (3, 3))
 
 
 def body_z_vertical(q: Tensor) -> Tensor:
     """``[..., 1]``: ``quat_to_rotmat(q)[..., 2, 2:3]``, the vertical component of the body z axis
-    (``1 - 2 (xx + yy)``, the same bits), without the other eight entries."""
+    (as ``1 - 2 (xx + yy)``), without the other eight entries."""
     xy = q[..., 1:3]
     squares = xy * xy
     half = squares[..., :1] + squares[..., 1:]
@@ -95,6 +125,15 @@ def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
         ),
         -1,
     )
+
+
+def euler_to_rotmat(angles: Tensor) -> Tensor:
+    """``[..., 3, 3]``: the rotation matrix of Z-Y-X Euler angles ``[..., 3]`` (roll, pitch, yaw,
+    radians), ``quat_to_rotmat(quat_from_euler(roll, pitch, yaw))`` without the quaternion."""
+    t = _tables(angles.device, angles.dtype)
+    factors = torch.cat((torch.cos(angles), torch.sin(angles), t.one.expand(*angles.shape[:-1], 1)), -1)
+    products = factors.index_select(-1, t.euler_index).unflatten(-1, (2, 9, 3)).prod(-1)
+    return torch.linalg.vecdot(products, t.euler_sign, dim=-2).unflatten(-1, (3, 3))
 
 
 def atan2(y: Tensor, x: Tensor) -> Tensor:
@@ -121,34 +160,33 @@ def quat_integrate(q: Tensor, omega_body: Tensor, half_dt: Tensor | float) -> Te
     renormalised. ``half_dt``: half the step, a number or (for an eager caller that steps often:
     no conversion per use) a 0-dim tensor of the rate's dtype."""
     t = _tables(q.device, q.dtype)
-    series_below, one, six = operands((t.sinc_series_below, t.one, t.six), (1e-4, 1.0, 6.0))
+    inv_pi = operands(t.inv_pi, 1.0 / math.pi)
     half_angle = half_dt * omega_body
     theta = norm(half_angle)
-    # sin(theta)/theta, with its Taylor series where theta is tiny (no division by zero)
-    sinc = torch.where(theta < series_below, one - theta * theta / six, torch.sin(theta) / theta.clamp_min(1e-12))
-    dq = torch.cat((torch.cos(theta), sinc * half_angle), -1)
+    # sin(theta) / theta, 1 at theta = 0 (no division by zero)
+    dq = torch.cat((torch.cos(theta), torch.sinc(theta * inv_pi) * half_angle), -1)
     out = quat_mul(q, dq)
     return out / norm(out)
 
 
-# Small products as broadcast multiply-and-sum rather than ``@``: as fast for 3x3 and 4x4, fused
-# by torch.compile, and free of BLAS's size-dependent kernel choice, so a row's result does not
-# depend on how many rows share its batch (bitwise replay).
+# Small products as broadcast multiply-and-sum (``linalg.vecdot``: one eager op) rather than ``@``:
+# as fast for 3x3 and 4x4, fused by torch.compile, and free of BLAS's size-dependent kernel choice,
+# so a row's result does not depend on how many rows share its batch (bitwise replay).
 
 
 def matvec(m: Tensor, v: Tensor) -> Tensor:
     """``m @ v`` over the last two/one dims, batch-size independent."""
-    return (m * v.unsqueeze(-2)).sum(-1)
+    return torch.linalg.vecdot(m, v.unsqueeze(-2))
 
 
 def vecmat(v: Tensor, m: Tensor) -> Tensor:
     """``v @ m`` (``v`` ``[..., K]``, ``m`` ``[..., K, J]``), batch-size independent."""
-    return (v.unsqueeze(-1) * m).sum(-2)
+    return torch.linalg.vecdot(v.unsqueeze(-1), m, dim=-2)
 
 
-def matmul(a: Tensor, b: Tensor) -> Tensor:
-    """``a @ b`` for batches of small matrices, batch-size independent."""
-    return (a.unsqueeze(-1) * b.unsqueeze(-3)).sum(-2)
+def transpose_matmul(a: Tensor, b: Tensor) -> Tensor:
+    """``a^T @ b`` for batches of small matrices, batch-size independent."""
+    return torch.linalg.vecdot(a.unsqueeze(-1), b.unsqueeze(-2), dim=-3)
 
 
 def norm(v: Tensor) -> Tensor:
@@ -167,6 +205,7 @@ def rotate_inverse(r: Tensor, v: Tensor) -> Tensor:
     return vecmat(v, r)
 
 
-def vee(m: Tensor) -> Tensor:
-    """The vector of a skew-symmetric matrix."""
-    return torch.stack((m[..., 2, 1], m[..., 0, 2], m[..., 1, 0]), -1)
+def vee_antisymmetric(m: Tensor) -> Tensor:
+    """``1/2 vee(m^T - m)`` (``vee`` the vector of a skew-symmetric matrix):
+    ``(m_12 - m_21, m_20 - m_02, m_01 - m_10) / 2``."""
+    return torch.linalg.vecdot(m.flatten(-2).unsqueeze(-2), _tables(m.device, m.dtype).vee_map)

@@ -47,7 +47,7 @@ from torch import Tensor
 
 from ..config import SensorChannelConfig, SensorConfig
 from .counter_rng import hash_normal, keyed_normal, stream_key
-from .tensordicts import unchecked
+from .tensordicts import entry, unchecked
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,7 @@ def sensor_widths() -> dict[str, int]:
 
 def pack_channels(entries: TensorDict | dict[str, Tensor], names: tuple[str, ...] = SENSOR_NAMES) -> Tensor:
     """The named entries ``names`` concatenated along the last dimension, in that order."""
-    return torch.cat([entries[name] for name in names], -1)
+    return torch.cat([entries[name] if isinstance(entries, dict) else entry(entries, name) for name in names], -1)
 
 
 def unpack_channels(packed: Tensor, names: tuple[str, ...] = SENSOR_NAMES) -> TensorDict:
@@ -171,7 +171,7 @@ class SensorSuite:
     def imu_mean(self, state: TensorDict, name: str) -> Tensor:
         """The mean of IMU instrument ``name``'s samples over the last control step."""
         start = _OFFSET[name] - _IMU.start
-        return state["imu_mean"][..., start : start + _BY_NAME[name].width]
+        return entry(state, "imu_mean")[..., start : start + _BY_NAME[name].width]
 
     def init(self, sensor_seed: Tensor) -> tuple[TensorDict, TensorDict]:
         """``(params, state)`` of a batch of episodes: the noise seed ``[N]`` and its hash keys of
@@ -202,23 +202,25 @@ class SensorSuite:
         truth_packed = pack_channels(truth)
         if not self.cfg.enabled:
             return unpack_channels(truth_packed), unchecked(
-                state.batch_size, dict(bias=state["bias"], held=state["held"], imu_mean=truth_packed[..., _IMU]))
+                state.batch_size, dict(bias=entry(state, "bias"), held=entry(state, "held"),
+                                       imu_mean=truth_packed[..., _IMU]))
         tick = (step.unsqueeze(-1) % self.period) == 0
         if force is not None:
             tick = tick | force
-        bias = state["bias"]
+        bias = entry(state, "bias")
         imu_sum = None
         if imu_truth_sub is not None:
             # the IMU's intermediate samples, in time order, each with its own noise and bias step
             imu_truth = pack_channels(imu_truth_sub, _IMU_NAMES)
             sub = imu_truth.shape[-2]
-            draws = keyed_normal(params["imu_noise_key"], step, 2 * _NUM_IMU * sub).unflatten(-1, (sub, 2 * _NUM_IMU))
+            draws = keyed_normal(entry(params, "imu_noise_key"), step, 2 * _NUM_IMU * sub)
+            draws = draws.unflatten(-1, (sub, 2 * _NUM_IMU))
             imu_bias, imu_sum = bias[..., _IMU], 0.0
             for j in range(sub):
                 imu_bias = self.bias_decay[_IMU] * imu_bias + self.bias_step_std[_IMU] * draws[..., j, _NUM_IMU:]
                 imu_sum = imu_sum + imu_truth[..., j, :] + imu_bias + self.noise_std[_IMU] * draws[..., j, :_NUM_IMU]
             bias = torch.cat((bias[..., : _IMU.start], imu_bias, bias[..., _IMU.stop :]), -1)
-        draws = keyed_normal(params["noise_key"], step, 2 * _NUM_CHANNELS)
+        draws = keyed_normal(entry(params, "noise_key"), step, 2 * _NUM_CHANNELS)
         stepped = self.bias_decay * bias + self.bias_step_std * draws[..., _NUM_CHANNELS:]
         bias = torch.where(tick, stepped, bias)
         sample = truth_packed + bias + self.noise_std * draws[..., :_NUM_CHANNELS]
@@ -226,6 +228,6 @@ class SensorSuite:
         # differently in a kernel's vectorised body and its scalar tail, which made a row's
         # measurement depend on the batch size (tests/test_sensors.py)
         sample = torch.where(self.wrapped, torch.remainder(sample + math.pi, 2.0 * math.pi) - math.pi, sample)
-        held = torch.where(tick, sample, state["held"])
+        held = torch.where(tick, sample, entry(state, "held"))
         imu_mean = held[..., _IMU] if imu_sum is None else (imu_sum + held[..., _IMU]) / self.imu_samples_per_step
         return unpack_channels(held), unchecked(state.batch_size, dict(bias=bias, held=held, imu_mean=imu_mean))

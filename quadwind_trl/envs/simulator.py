@@ -49,7 +49,7 @@ from .controller import BaseController, ControlInputs, make_base_controller
 from .monitor import MonitorParams, monitor_gate
 from .navigation import NavigationParams, init_navigation, update_navigation
 from .operands import operands
-from .rotations import euler_from_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
+from .rotations import euler_from_rotmat, euler_to_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
 from .tensordicts import entry, unchecked
@@ -250,7 +250,7 @@ class QuadSimulator:
             nav_rot, nav_omega = rot, entry(body, "omega")
         else:
             # the measured attitude as a rotation, once: the filter's prediction and the PD read it
-            nav_rot = quat_to_rotmat(quat_from_euler(*entry(meas, "attitude").unbind(-1)))
+            nav_rot = euler_to_rotmat(entry(meas, "attitude"))
             if feedback == "sensors" or first:
                 nav = init_navigation(meas)
             else:

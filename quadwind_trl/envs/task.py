@@ -61,8 +61,8 @@ class TrackingTask:
 
     def step_reward(self, params: TensorDict, before: TensorDict, after: TensorDict) -> Tensor:
         k = operands(self._tensors, self._numbers)
-        err = after["body", "pos"] - after["ref", "pos"]
-        ff, ff_prev = after["control", "ff"], before["control", "ff"]
+        err = entry(after, "body", "pos") - entry(after, "ref", "pos")
+        ff, ff_prev = entry(after, "control", "ff"), entry(before, "control", "ff")
         reward = (
             k.alive_bonus
             - k.w_xy * norm(err[..., :2])
@@ -70,15 +70,15 @@ class TrackingTask:
             - k.w_ff * norm(ff)
             - k.w_dff * norm(ff - ff_prev)
         )
-        return torch.where(after["finite"], reward, k.zero)
+        return torch.where(entry(after, "finite"), reward, k.zero)
 
     def done(self, params: TensorDict, state: TensorDict) -> tuple[Tensor, Tensor]:
         k = operands(self._tensors, self._numbers)
-        pos = state["body", "pos"]
-        upright = body_z_vertical(state["body", "quat"]) > k.cos_crash_tilt
-        grounded = (pos[..., 2:] <= k.zero) & (state["step"] > k.grace_steps).unsqueeze(-1)
-        terminated = ~state["finite"] | ~upright | grounded
-        truncated = (state["step"] >= params["end_step"]).unsqueeze(-1)
+        pos, step = entry(state, "body", "pos"), entry(state, "step")
+        upright = body_z_vertical(entry(state, "body", "quat")) > k.cos_crash_tilt
+        grounded = (pos[..., 2:] <= k.zero) & (step > k.grace_steps).unsqueeze(-1)
+        terminated = ~entry(state, "finite") | ~upright | grounded
+        truncated = (step >= entry(params, "end_step")).unsqueeze(-1)
         return terminated, truncated
 
     def decision_reward(self, mean_step_reward: Tensor, terminated: Tensor) -> Tensor:

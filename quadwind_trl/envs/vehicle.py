@@ -43,9 +43,10 @@ fixed-pitch rotor (Leishman 2006, eqs. 3.56 and 2.117, linear twist ignored)::
     C_T    = (sigma a / 2) (theta / 3 (1 + 3/2 mu^2) - lambda / 2)
     lambda = lambda_c + C_T / (2 sqrt(mu^2 + lambda^2))
 
-solved by Newton's method from the hover inflow (four iterations agree with forty to 1e-5
-relative over the flight envelope, tests/test_vehicle.py). ``theta`` follows from the hover condition, so the
-still-air thrust is exactly ``k_T omega^2``. The hub velocity is the body's (the ``omega x r``
+solved by Newton's method from the axial-flow solution (exact at ``mu = 0``, where the two
+equations are a quadratic): three iterations agree with forty to 1e-9 over the flight envelope
+(float64; tests/test_vehicle.py). ``theta`` follows from the hover condition, so the still-air
+thrust is exactly ``k_T omega^2``. The hub velocity is the body's (the ``omega x r``
 part, under 0.5 m/s at the rates flown, is ignored). Outside momentum theory's range the inputs
 are clamped: a descent ratio beyond the hover inflow ratio (7.2 m/s at hover speed; vortex-ring
 state) and an advance ratio beyond 0.5 (the blade-element thrust term holds to about there; a
@@ -64,7 +65,6 @@ import torch
 from torch import Tensor
 
 from ..config import GRAVITY_M_S2, VehicleConfig
-from .operands import add_div, sub_div
 from .rotations import quat_integrate, quat_to_rotmat, rotate, rotate_inverse, vecmat
 
 
@@ -117,7 +117,7 @@ class VehicleParams:
         return min(self.collective_max, 4 * self.rotor_thrust_max)
 
 
-_INFLOW_NEWTON_STEPS = 4
+_INFLOW_NEWTON_STEPS = 3
 _MAX_PITCH_RAD = 0.5  # ~29 deg effective collective: beyond it a blade section stalls
 _MAX_ADVANCE_RATIO = 0.5
 
@@ -149,55 +149,65 @@ class RotorAero:
 
 
 class RotorOperands(NamedTuple):
-    """The numbers :func:`rotor_thrust_ratio` combines, derived from a :class:`RotorAero` in
-    float64: Python floats, or 0-dim tensors on the simulator's device (an eager op converts a
-    Python number operand at every use, ``aten::_to_copy``, and a tensor not at all; a float32
-    tensor holds the value the conversion gives, so the results are the same bits)."""
+    """The numbers the inflow solve combines, derived from a :class:`RotorAero` in float64 and
+    held as 0-dim tensors of the inputs' dtype and device: an eager op converts a Python number
+    operand at every use (``aten::_to_copy``), a tensor not at all."""
 
-    radius: Tensor | float
-    half_solidity_lift: Tensor | float  # s
-    blade_ct: Tensor | float  # s theta / 3: C_T before the advance and inflow terms
-    inflow_ct: Tensor | float  # s / 2: d C_T / d lambda
-    hover_inflow: Tensor | float
-    descent_limit: Tensor | float  # -hover_inflow: the clamp of the climb ratio
-    static_ct: Tensor | float
-    one: Tensor | float
-    advance_lift: Tensor | float  # 3/2: C_T's growth with mu^2
+    radius: Tensor
+    descent_limit: Tensor  # -hover_inflow: the clamp of the climb ratio
+    blade_ct: Tensor  # s theta / 3: C_T before the advance and inflow terms
+    blade_ct_advance: Tensor  # 3/2 s theta / 3: the blade term's growth with mu^2
+    neg_inflow_ct: Tensor  # -s / 2: d C_T / d lambda
+    inflow_ct: Tensor  # s / 2
+    quarter_inflow_ct: Tensor  # s / 8
+    half: Tensor
+    two: Tensor
+    static_ct: Tensor
 
 
-def rotor_operands(r: RotorAero, device: torch.device | str | None = None) -> RotorOperands:
-    """``r``'s operands: Python floats without ``device``, else float32 0-dim tensors on it."""
+def rotor_operands(r: RotorAero, device: torch.device | str | None = None,
+                   dtype: torch.dtype = torch.float32) -> RotorOperands:
+    """``r``'s operands as 0-dim tensors of ``dtype`` on ``device``."""
     s = r.half_solidity_lift
-    values = RotorOperands(r.radius, s, s * r.pitch / 3.0, 0.5 * s, r.hover_inflow, -r.hover_inflow, r.static_ct, 1.0, 1.5)
-    if device is None:
-        return values
-    return RotorOperands(*(torch.tensor(v, dtype=torch.float32, device=device) for v in values))
+    blade = s * r.pitch / 3.0
+    values = (r.radius, -r.hover_inflow, blade, 1.5 * blade, -0.5 * s, 0.5 * s, 0.125 * s, 0.5, 2.0, r.static_ct)
+    return RotorOperands(*(torch.tensor(v, dtype=dtype, device=device) for v in values))
 
 
 def rotor_thrust_ratio(air_rel_body: Tensor, rotor_speed: Tensor, r: RotorAero | RotorOperands) -> Tensor:
     """Thrust ``[N, 4]`` of each rotor relative to its still-air value ``k_T omega^2``, for the
     body-frame velocity relative to the air ``[N, 3]`` and rotor speeds ``[N, 4]`` (rad/s).
     ``r``: the rotor, or its operands (:func:`rotor_operands`) on the inputs' device."""
-    o = rotor_operands(r) if isinstance(r, RotorAero) else r
+    o = rotor_operands(r, air_rel_body.device, air_rel_body.dtype) if isinstance(r, RotorAero) else r
+    return (rotor_thrust_coefficient(air_rel_body, rotor_speed, o) / o.static_ct).clamp_min(0.0)
+
+
+def rotor_thrust_coefficient(air_rel_body: Tensor, rotor_speed: Tensor, o: RotorOperands) -> Tensor:
+    """``C_T`` ``[N, 4]`` of each rotor (module docstring), negative beyond zero thrust (the
+    caller stops there), for the inputs of :func:`rotor_thrust_ratio`."""
     # the ratio multiplies k_T omega^2, so a stopped rotor makes no thrust; the floor keeps it finite
-    tip_speed = (rotor_speed * o.radius).clamp_min(1.0)
-    climb = (air_rel_body[..., 2:] / tip_speed).clamp_min(o.descent_limit)
-    mu2 = (air_rel_body[..., :2].square().sum(-1, keepdim=True) / tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
-    ct_blade = o.blade_ct * (o.one + o.advance_lift * mu2)  # C_T before the inflow term
-    inflow = torch.as_tensor(o.hover_inflow, dtype=climb.dtype, device=climb.device).expand_as(climb)
+    per_tip_speed = (rotor_speed * o.radius).clamp_min(1.0).reciprocal()
+    climb = (air_rel_body[..., 2:] * per_tip_speed).clamp_min(o.descent_limit)
+    edgewise = air_rel_body[..., :2].square().sum(-1, keepdim=True)
+    mu2 = (edgewise * per_tip_speed.square()).clamp_max(_MAX_ADVANCE_RATIO**2)
+    ct_blade = torch.addcmul(o.blade_ct, mu2, o.blade_ct_advance)  # C_T before the inflow term
+    # the start: the axial-flow solution, exact at mu = 0, where the two equations are the
+    # quadratic 2 lambda^2 + (s/2 - 2 lambda_c) lambda - C_T,blade = 0 (its positive root)
+    b = torch.add(o.quarter_inflow_ct, climb, alpha=-0.5)  # the linear coefficient / 4
+    inflow = torch.addcmul(ct_blade * o.half, b, b).sqrt() - b
     for _ in range(_INFLOW_NEWTON_STEPS):
-        ct = ct_blade - o.inflow_ct * inflow
-        speed = torch.sqrt(mu2 + inflow.square())
-        # 2 x and 4 x as sums (exact, as the products are) and s / x as reciprocal times s (what
-        # a Python float over a tensor computes): no Python number operand in the loop; a - b / c
-        # and a + b / c one eager op each (operands.sub_div, add_div: the same bits)
-        twice, cube = speed + speed, speed**3
-        residual = sub_div(inflow - climb, ct, twice)
-        slope = add_div(o.one + (twice + twice).reciprocal() * o.half_solidity_lift, ct * inflow, cube + cube)
-        inflow = sub_div(inflow, residual, slope)
+        # Newton on f = lambda - lambda_c - C_T / (2 S), S = sqrt(mu^2 + lambda^2), both sides
+        # doubled: lambda += (C_T / S - 2 (lambda - lambda_c)) / (2 + (s/2 + C_T lambda / S^2) / S),
+        # one fused op per term (addcmul, addcdiv)
+        ct = torch.addcmul(ct_blade, inflow, o.neg_inflow_ct)
+        per_speed = torch.addcmul(mu2, inflow, inflow).rsqrt()
+        ct_per_speed = ct * per_speed
+        step_up = torch.add(ct_per_speed, inflow - climb, alpha=-2.0)
+        slope = torch.addcmul(o.two, per_speed, torch.addcmul(o.inflow_ct, ct_per_speed * inflow, per_speed))
+        inflow = torch.addcdiv(inflow, step_up, slope)
     # beyond zero thrust (inflow faster than the blades' pitch: windmill state) a fixed-pitch
-    # propeller brakes rather than pulls; the model stops at zero thrust
-    return ((ct_blade - o.inflow_ct * inflow) / o.static_ct).clamp_min(0.0)
+    # propeller brakes rather than pulls; the caller stops at zero thrust
+    return torch.addcmul(ct_blade, inflow, o.neg_inflow_ct)
 
 
 def drag_force_body(air_rel_vel_body: Tensor, half_rho_cda: Tensor) -> Tensor:
@@ -231,27 +241,35 @@ class RigidBody(NamedTuple):
 class StepConstants(NamedTuple):
     """The numbers one :func:`physics_step` of ``dt`` uses, as 0-dim float32 tensors on the
     simulator's device (``[3]`` for the vectors): an eager op converts a Python number operand at
-    every use (``aten::_to_copy``), a tensor not at all, and a float32 tensor holds the value that
-    conversion gives, so the results are the same bits."""
+    every use (``aten::_to_copy``), a tensor not at all."""
 
     zero: Tensor
     dt: Tensor
     half_dt: Tensor
     motor_decay: Tensor  # exp(-dt / tau): the exact first-order lag over dt
-    thrust_coeff: Tensor
     mass: Tensor
     gravity: Tensor  # [3] (0, 0, g), world
-    is_z: Tensor  # bool [3]: the vertical component
+    neg_gravity: Tensor  # [3]
+    ground: Tensor  # [3] (-inf, -inf, 0): a position below it is below the ground
+    neg_drag: Tensor  # [3] -1/2 rho CdA per body axis
+    inertia: Tensor  # [3] diagonal
+    rotor_wrench: Tensor  # [4, 6] rotor lifts -> body force (0, 0, T) and torque (module docstring)
     rotor: RotorOperands | None
 
 
 def step_constants(p: VehicleParams, dt: float, device: torch.device | str | None = None) -> StepConstants:
     """:class:`StepConstants` of a physics step of ``dt`` seconds with vehicle ``p``."""
     num = lambda v: torch.tensor(v, dtype=torch.float32, device=device)  # noqa: E731
+    # a rotor's thrust is k_T omega^2 times C_T / C_T0 (momentum) or 1 (static): the factor the
+    # per-rotor "lift" (omega^2 C_T or omega^2) is mapped to the wrench with, folded into the mixer
+    lift_to_thrust = p.thrust_coeff / (1.0 if p.rotor is None else p.rotor.static_ct)
+    mixer = p.mixer.to(torch.float64).cpu()
+    wrench = torch.cat((torch.zeros(4, 2, dtype=torch.float64), mixer.T), -1) * lift_to_thrust
     return StepConstants(
         zero=num(0.0), dt=num(dt), half_dt=num(0.5 * dt), motor_decay=num(math.exp(-dt / p.motor_time_constant)),
-        thrust_coeff=num(p.thrust_coeff), mass=num(p.mass), gravity=num([0.0, 0.0, GRAVITY_M_S2]),
-        is_z=torch.tensor([False, False, True], device=device),
+        mass=num(p.mass), gravity=num([0.0, 0.0, GRAVITY_M_S2]), neg_gravity=num([0.0, 0.0, -GRAVITY_M_S2]),
+        ground=num([-math.inf, -math.inf, 0.0]), neg_drag=-p.drag_half_rho_cda.to(torch.float32).to(device),
+        inertia=p.inertia.to(torch.float32).to(device), rotor_wrench=wrench.to(torch.float32).to(device),
         rotor=None if p.rotor is None else rotor_operands(p.rotor, device),
     )
 
@@ -266,34 +284,32 @@ def physics_step(
     caller that steps often."""
     k = step_constants(p, dt, rotor_cmd.device) if k is None else k
     pos, vel, quat, omega = body.pos, body.vel, body.quat, body.omega
-    rotor = rotor_cmd + (body.rotor - rotor_cmd) * k.motor_decay
+    rotor = torch.lerp(rotor_cmd, body.rotor, k.motor_decay)  # cmd + (rotor - cmd) exp(-dt / tau)
     rot = quat_to_rotmat(quat)
     air_rel_body = rotate_inverse(rot, vel - air_vel_world)
-    rotor_thrust = k.thrust_coeff * rotor * rotor
+    lift = rotor.square()
     if k.rotor is not None:
-        rotor_thrust = rotor_thrust * rotor_thrust_ratio(air_rel_body, rotor, k.rotor)
-    wrench = vecmat(rotor_thrust, p.mixer.T)
-    force_body = drag_force_body(air_rel_body, p.drag_half_rho_cda)
-    force_body = force_body + torch.where(k.is_z, wrench[..., :1], k.zero)  # (0, 0, T)
-    acc = rotate(rot, force_body) / k.mass
-    acc = acc - k.gravity
+        lift = lift * rotor_thrust_coefficient(air_rel_body, rotor, k.rotor).clamp_min(0.0)
+    wrench = vecmat(lift, k.rotor_wrench)  # body force (0, 0, T), then the torque
+    force_body = torch.addcmul(wrench[..., :3], air_rel_body * k.neg_drag, air_rel_body.abs())  # + drag
+    acc = torch.addcdiv(k.neg_gravity, rotate(rot, force_body), k.mass)
 
-    resting = (pos[..., 2:] <= k.zero) & (acc[..., 2:] <= k.zero)
+    resting = (torch.maximum(pos, acc) <= k.zero)[..., 2:]  # on the ground, not lifting off
     acc = torch.where(resting, k.zero, acc)
-    vel = torch.where(resting, k.zero, vel + k.dt * acc)
-    increment = k.dt * vel - body.pos_carry
+    vel = torch.where(resting, k.zero, torch.addcmul(vel, acc, k.dt))
+    increment = vel * k.dt - body.pos_carry
     moved = pos + increment
     carry = (moved - pos) - increment
     # below the ground: the height (a Scalar clamp_min keeps -0.0, as this does), its carry and
     # any sink rate to zero; whole-row selects on the vertical component, not slices and concats
-    below = (moved < k.zero) & k.is_z
+    below = moved < k.ground
     pos = torch.where(below, k.zero, moved)
     carry = torch.where(below, k.zero, carry)
     vel = torch.where(below, vel.clamp_min(0.0), vel)
 
-    torque = wrench[..., 1:]
-    omega_mid = omega + k.half_dt * _angular_acceleration(omega, torque, p.inertia)
-    omega_new = omega + k.dt * _angular_acceleration(omega_mid, torque, p.inertia)
+    torque_per_inertia = wrench[..., 3:] / k.inertia
+    omega_mid = torch.addcmul(omega, _angular_acceleration(omega, torque_per_inertia, k.inertia), k.half_dt)
+    omega_new = torch.addcmul(omega, _angular_acceleration(omega_mid, torque_per_inertia, k.inertia), k.dt)
     quat = quat_integrate(quat, torch.where(resting, k.zero, omega_mid), k.half_dt)
     omega = torch.where(resting, k.zero, omega_new)
 
@@ -301,5 +317,6 @@ def physics_step(
     return RigidBody(pos, carry, vel, quat, omega, rotor), specific_force_body
 
 
-def _angular_acceleration(omega: Tensor, torque: Tensor, inertia: Tensor) -> Tensor:
-    return (torque - torch.linalg.cross(omega, inertia * omega)) / inertia
+def _angular_acceleration(omega: Tensor, torque_per_inertia: Tensor, inertia: Tensor) -> Tensor:
+    """Euler's equations, ``I^-1 (tau - omega x I omega)``, for a diagonal ``I``."""
+    return torch.addcdiv(torque_per_inertia, torch.linalg.cross(omega, inertia * omega), inertia, value=-1.0)
