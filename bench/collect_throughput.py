@@ -51,17 +51,17 @@ def measure(n: int, steps: int, batches: int, estimator_path: str | None, compil
     dev = torch.device(device)
     base = env.base_env
     sim_time = [0.0]
-    raw_step = base._advance  # one held control step (simulator + task + merge), hold times per env step
+    raw_step = base._hold  # an env step's held control steps (simulator + task + merge)
 
-    def timed_step(*args):
+    def timed_step(*args, **kwargs):
         _sync(dev)
         t0 = time.perf_counter()
-        out = raw_step(*args)
+        out = raw_step(*args, **kwargs)
         _sync(dev)
         sim_time[0] += time.perf_counter() - t0
         return out
 
-    base._advance = timed_step
+    base._hold = timed_step
     west = wind_estimate(env)
     tick_time = [0.0]
     raw_tick = west._tick

@@ -154,7 +154,7 @@ def test_a_compile_that_fails_on_a_broken_entry_deletes_it_and_compiles_again(mo
         return control_step._flat_held_control_step(*args)
 
     env = QuadWindEnv(EnvConfig(), batch_size=[2], compile_step=True)
-    env._advance._function = fails_on_the_library_once
+    env._hold._function = fails_on_the_library_once
     eager = QuadWindEnv(EnvConfig(), batch_size=[2])
     td, td_eager = env.reset(), eager.reset()
     td["action"] = td_eager["action"] = torch.full((2, 4), 0.1)
@@ -169,7 +169,7 @@ def test_a_compile_that_fails_on_a_broken_entry_deletes_it_and_compiles_again(mo
     def always_fails(*args):
         raise torch._dynamo.exc.BackendCompilerFailed("inductor", RuntimeError("an inductor bug"), None)
 
-    env._advance._function = always_fails
+    env._hold._function = always_fails
     with pytest.warns(RuntimeWarning), pytest.raises(torch._dynamo.exc.BackendCompilerFailed) as failed:
         env.step(stepped["next"].clone().set("action", td["action"]))
     assert any(str(compile_cache.compile_cache_dir()) in note and "again" in note for note in failed.value.__notes__)

@@ -139,9 +139,26 @@ def _distinct(leaves: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
     return tuple(out)
 
 
+def held_control_steps(sim: QuadSimulator, task: Task, params: TensorDict, state: TensorDict, action: Tensor,
+                       wind_ne: Tensor | None, reward: Tensor, steps: Tensor, terminated: Tensor, truncated: Tensor,
+                       count: int = 1) -> tuple[TensorDict, Tensor, Tensor, Tensor, Tensor]:
+    """``count`` control steps of one held action (:func:`held_control_step`), eagerly, from the
+    running totals given. The first starts with no row ended: its merge would select the whole
+    new state (a select per state leaf), and is skipped."""
+    for k in range(count):
+        state, reward, steps, terminated, truncated = held_control_step(
+            sim, task, params, state, action, wind_ne, reward, steps, terminated, truncated, merge=k > 0)
+    return state, reward, steps, terminated, truncated
+
+
 class CompiledControlStep:
-    """:func:`held_control_step` of ``sim`` and ``task`` through the process's compiled step
-    (module docstring); called as the eager one, without ``sim``, ``task`` and ``merge``.
+    """:func:`held_control_steps` of ``sim`` and ``task`` through the process's compiled step
+    (module docstring); called as the eager one, without ``sim`` and ``task``. Every control step
+    is one call of the compiled :func:`held_control_step`, its merge included (no row has ended
+    at the first, and the merge then selects the new state: one graph serves every control step).
+    The params and state cross as leaves: flattened once per call and rebuilt once, not at every
+    control step (at N = 64, flattening, rebuilding and the nested TensorDicts cost about an
+    eighth of a compiled control step).
     ``dynamic``: the batch dimension symbolic (one graph for every ``N``), else static sizes."""
 
     def __init__(self, sim: QuadSimulator, task: Task, dynamic: bool = True):
@@ -150,20 +167,30 @@ class CompiledControlStep:
         self._layout: _Layout | None = None
 
     def __call__(self, params: TensorDict, state: TensorDict, action: Tensor, wind_ne: Tensor | None,
-                 reward: Tensor, steps: Tensor, terminated: Tensor, truncated: Tensor):
+                 reward: Tensor, steps: Tensor, terminated: Tensor, truncated: Tensor,
+                 count: int = 1) -> tuple[TensorDict, Tensor, Tensor, Tensor, Tensor]:
         first = self._layout is None
         if first:  # the keys are the config's: the same at every step
             self._layout = _Layout(_leaf_keys(params), _leaf_keys(state))
         layout = self._layout
-        leaves = _distinct((*(entry(params, *k) for k in layout.params), *(entry(state, *k) for k in layout.state)))
-        params_leaves, state_leaves = leaves[:len(layout.params)], leaves[len(layout.params):]
+        params_leaves = tuple(entry(params, *k) for k in layout.params)
+        state_leaves = tuple(entry(state, *k) for k in layout.state)
         totals = (reward, steps, terminated, truncated)
+        for k in range(count):
+            state_leaves, *totals = self._step(params_leaves, state_leaves, action, wind_ne, totals, first and k == 0)
+        return (_rebuild(layout.state, state_leaves, state.batch_size), *totals)
+
+    def _step(self, params_leaves: tuple[Tensor, ...], state_leaves: tuple[Tensor, ...], action: Tensor,
+              wind_ne: Tensor | None, totals: tuple[Tensor, ...], first: bool) -> tuple:
+        """One compiled control step on the leaves: the new state's leaves and the four totals."""
+        leaves = _distinct((*params_leaves, *state_leaves))
+        params_leaves, state_leaves = leaves[:len(params_leaves)], leaves[len(params_leaves):]
         if first and self.dynamic:  # a graph traced with N symbolic keeps it so: later calls need no marks
             for leaf in (*leaves, action, *totals, *(() if wind_ne is None else (wind_ne,))):
                 torch._dynamo.maybe_mark_dynamic(leaf, 0)
-        args = (self.sim, self.task, layout, params_leaves, state_leaves, action, wind_ne, *totals)
+        args = (self.sim, self.task, self._layout, params_leaves, state_leaves, action, wind_ne, *totals)
         try:
-            new, *totals = self._function(*args)
+            return self._function(*args)
         except torch._dynamo.exc.BackendCompilerFailed as error:
             # a broken cache entry that the check before the first compile could not see (one
             # younger than its grace, a module rather than a library) is deleted and the step
@@ -171,12 +198,11 @@ class CompiledControlStep:
             # failure, not the cache's
             warnings.warn(f"the step's compile failed ({type(error.inner_exception).__name__}: "
                           f"{error.inner_exception}); {discard_broken_entry(error)} was deleted from its cache and "
-                          "the step is compiled again", RuntimeWarning, stacklevel=2)
+                          "the step is compiled again", RuntimeWarning, stacklevel=3)
             try:
-                new, *totals = self._function(*args)
+                return self._function(*args)
             except torch._dynamo.exc.BackendCompilerFailed as again:
                 again.add_note(f"the compiled step failed to compile again after its broken cache entry was deleted "
                                f"(cache: {compile_cache_dir()}): where it names a file there, delete that folder; "
                                "else the cause is not the cache")
                 raise
-        return (_rebuild(layout.state, new, state.batch_size), *totals)

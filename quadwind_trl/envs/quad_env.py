@@ -16,7 +16,7 @@ from ..keys import BASE_STATE_KEY, BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY
 from ..validation import check_action
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
-from .control_step import CompiledControlStep, held_control_step
+from .control_step import CompiledControlStep, held_control_steps
 from .controller import BaseController
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
@@ -187,13 +187,9 @@ class QuadWindEnv(EnvBase):
         self.task = task if task is not None else TrackingTask(self.config, self.device)
         if compile_step not in COMPILE_STEP_CHOICES:
             raise ValueError(f"QuadWindEnv.compile_step={compile_step!r}; allowed: {', '.join(map(repr, COMPILE_STEP_CHOICES))}")
-        self._advance = (CompiledControlStep(self.sim, self.task, dynamic=compile_step != "static") if compile_step
-                         else functools.partial(held_control_step, self.sim, self.task))
-        # a decision's first control step starts with no row ended, so its merge would select the
-        # whole new state: eagerly that is a select per state leaf, skipped; compiled, the merge
-        # costs nothing and one graph serves every control step of the hold
-        self._first_advance = self._advance if compile_step else functools.partial(
-            held_control_step, self.sim, self.task, merge=False)
+        # the hold's control steps under one action, from the decision's running totals
+        self._hold = (CompiledControlStep(self.sim, self.task, dynamic=compile_step != "static") if compile_step
+                      else functools.partial(held_control_steps, self.sim, self.task))
         self._compiled = bool(compile_step)
         # a decision's running totals (reward sum, control steps, terminated, truncated) start
         # from these: made once, as a step only makes new tensors from them
@@ -268,17 +264,13 @@ class QuadWindEnv(EnvBase):
                 raise KeyError(f"this env's base controller flies on a wind estimate: the step's input needs "
                                f"{BASE_WIND_KEY!r} [N, 2] (north, east, m/s) beside the action "
                                "(transforms.BaseWindInput writes it from the wind estimate)")
-        state = self.state
-        reward, steps, terminated, truncated = self._no_totals
         # eagerly, the held steps run in inference mode: no autograd bookkeeping per op (a fifth of
         # the eager step at small batches); what they return leaves it as ordinary tensors. Not
         # for an action that asks for gradients through the simulator
         inference = not (self._compiled or torch.is_inference_mode_enabled() or action.requires_grad)
         with torch.inference_mode() if inference else contextlib.nullcontext():
-            for k in range(self.config.timing.hold_control_steps):
-                advance = self._advance if k else self._first_advance
-                state, reward, steps, terminated, truncated = advance(
-                    self.params, state, action, wind_ne, reward, steps, terminated, truncated)
+            state, reward, steps, terminated, truncated = self._hold(
+                self.params, self.state, action, wind_ne, *self._no_totals, count=self.config.timing.hold_control_steps)
         if inference:
             state, reward, steps, terminated, truncated = _ordinary((state, reward, steps, terminated, truncated))
         self.state = state
