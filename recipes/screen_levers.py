@@ -56,6 +56,9 @@ def main() -> None:
     p.add_argument("--collect", nargs="+", type=Path, default=None, metavar="DIR",
                    help="gather the rows of these screens' output folders into --out as one screen (trains nothing)")
     args, extra = p.parse_known_args()
+    # the code's commit, taken before this recipe writes anything: rewriting rows that are
+    # committed under OUT must not mark the record "-dirty"
+    commit = git_commit()
     if args.list:
         for name, flags in LEVERS[args.regime].items():
             print(f"{name:20s} {' '.join(flags) or '(the recipe as it is)'}")
@@ -63,7 +66,7 @@ def main() -> None:
     if args.collect:
         if args.out is None:
             p.error("--collect writes the gathered screen to --out: name it")
-        return _collect(args.collect, args.out)
+        return _collect(args.collect, args.out, commit)
     try:
         plan = ScreenPlan(
             regime=args.regime, base=args.base, levers=tuple(parse_lever(t, args.regime) for t in args.levers),
@@ -79,14 +82,15 @@ def main() -> None:
     except ScreenMismatch as err:
         raise SystemExit(f"error: {err}") from None
     command = command_line(sys.argv)
-    _write(plan.out, rows, [command], {"plan": {k: (repo_relative(v) if isinstance(v, Path) else v)
+    _write(plan.out, rows, [command], commit, {"plan": {k: (repo_relative(v) if isinstance(v, Path) else v)
                                                 for k, v in asdict(plan).items()}})
 
 
-def _write(out: Path, rows: list, commands: list[str], extra: dict) -> None:
-    """``out/screen.json`` (rows, summary, the commands that flew them) and ``out/screen.md``."""
+def _write(out: Path, rows: list, commands: list[str], commit: str | None, extra: dict) -> None:
+    """``out/screen.json`` (rows, summary, the commands that flew them, the commit the recipe ran
+    at) and ``out/screen.md``."""
     regime, base = rows[0].regime, rows[0].base
-    write_json(out / "screen.json", {"command": commands[-1], "commands": commands, "git_commit": git_commit(),
+    write_json(out / "screen.json", {"command": commands[-1], "commands": commands, "git_commit": commit,
                                      "platform": platform_info(), **extra, "summary": summarize(rows),
                                      "rows": [asdict(r) for r in rows]})
     flown_at = sorted({r.git_commit or "unknown" for r in rows})
@@ -98,7 +102,7 @@ def _write(out: Path, rows: list, commands: list[str], extra: dict) -> None:
     print(md)
 
 
-def _collect(folders: list[Path], out: Path) -> None:
+def _collect(folders: list[Path], out: Path, commit: str | None) -> None:
     """``--collect``: the rows of ``folders`` gathered into ``out`` as one screen."""
     try:
         rows, commands = collect(folders)
@@ -107,7 +111,7 @@ def _collect(folders: list[Path], out: Path) -> None:
     rows.sort(key=lambda r: (r.lever, r.seed))
     for row in rows:
         write_json(out / "rows" / f"{row.lever}_seed{row.seed}.json", asdict(row))
-    _write(out, rows, [*commands, command_line(sys.argv)], {"collected_from": [repo_relative(f) for f in folders]})
+    _write(out, rows, [*commands, command_line(sys.argv)], commit, {"collected_from": [repo_relative(f) for f in folders]})
 
 
 if __name__ == "__main__":

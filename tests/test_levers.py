@@ -556,6 +556,9 @@ def test_screens_run_beside_each_other_are_collected_into_one(tmp_path):
                            "--out", str(out)], capture_output=True, text=True, timeout=300, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-3000:]
     assert sorted(p.name for p in (out / "rows").iterdir()) == ["base_state_seed0.json", "base_state_seed1.json"]
+    from quadwind_trl.manifest import git_commit
+
+    assert json.loads((out / "screen.json").read_text())["git_commit"] == git_commit()  # the code's, as checked out
     summary = json.loads((out / "screen.json").read_text())["summary"][0]
     assert summary["seeds"] == [0, 1] and math.isclose(summary["xy"]["mean_pct"], 15.0, rel_tol=1e-6)
     md = (out / "screen.md").read_text()
