@@ -55,6 +55,10 @@ is this cascade with up to two classical additions to its outer loop, each a con
     the outer loop's desired acceleration, as the observer's is: the cascade turns it into tilt
     and thrust.
 
+A residual policy on the acceleration (``ResidualConfig.acts_on="acceleration"``) reaches the
+same place: its correction (``ControlInputs.acc_correction``, world frame) is added to ``a_des``
+beside these terms, before the tilt limit.
+
 The law's state (the integral; the observer's or L1's force, its modelled thrust and L1's
 predicted velocity) lives in the simulator's state TensorDict (``state["base"]``); nothing here
 holds state between calls.
