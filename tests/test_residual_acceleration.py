@@ -11,8 +11,8 @@ import pytest
 import torch
 from tensordict import TensorDict
 
-from quadwind_trl.config import (GRAVITY_M_S2, ControllerConfig, EnvConfig, ResidualConfig, TurbulenceConfig,
-                                 with_sensing)
+from quadwind_trl.config import (GRAVITY_M_S2, ControllerConfig, EnvConfig, MonitorConfig, ResidualConfig,
+                                 TurbulenceConfig, with_sensing)
 from quadwind_trl.envs import QuadWindEnv
 from quadwind_trl.envs.controller import make_base_controller
 from quadwind_trl.envs.rotations import heading_to_world
@@ -95,6 +95,28 @@ def test_the_heading_frame_turns_into_the_world_by_the_reference_heading():
     vec = torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     world = heading_to_world(vec, torch.full((3, 1), math.pi / 2))
     torch.testing.assert_close(world, torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))
+
+
+def test_the_runtime_monitor_reads_the_base_thrust_and_zeroes_a_correction_on_the_acceleration():
+    """A climb correction that asks more thrust than the monitor's fraction of the rotors' limit
+    trips it through the base law's thrust (which holds the correction), and the correction is zero
+    while it holds; with no correction the hover never comes near the limit."""
+    cfg = with_sensing(_on("pd", "acceleration", hold=1), "true_state")
+    # 6 m/s^2 up, in a few control steps (the position loop takes the thrust back to hover's once the
+    # vehicle has moved), asks 1.6 times hover's thrust; the monitor trips at half the limit, 1.25 times
+    residual = replace(cfg.residual, acceleration_scale_m_s2=(3.0, 3.0, 6.0),
+                       acceleration_slew_m_s2_per_step=(0.03, 0.03, 6.0), monitor=MonitorConfig(thrust_fraction=0.5))
+    sim = QuadSimulator(replace(cfg, residual=residual))
+    params, state = sim.initial(make_scenarios(2, traj_id="hover", altitude_m=20.0, start_step=-1,
+                                               wind_speed_ref_m_s=0.0))
+    action = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    held = []
+    for _ in range(300):
+        state = sim.step(params, state, action)
+        held.append(state["control", "monitor_left"][:, 0] > 0)
+        assert not state["control", "ff"][held[-1]].any()
+    held = torch.stack(held)
+    assert not held[:, 0].any() and held[:, 1].any()
 
 
 # --- the scales, from the vehicle ---------------------------------------------------------------
