@@ -276,7 +276,8 @@ class ResidualConfig:
 
     def validate(self) -> None:
         if self.acts_on not in RESIDUAL_TARGETS:
-            raise ValueError(f"ResidualConfig.acts_on={self.acts_on!r}; allowed: {', '.join(map(repr, RESIDUAL_TARGETS))}")
+            allowed = ", ".join(map(repr, RESIDUAL_TARGETS))
+            raise ValueError(f"ResidualConfig.acts_on={self.acts_on!r}; allowed: {allowed}")
         _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
         for name in ("slew_limit_per_step", "acceleration_scale_m_s2", "acceleration_slew_m_s2_per_step"):
             value = getattr(self, name)

@@ -86,7 +86,8 @@ class _BatchedStack:
         return td.get(OBSERVATION_KEY).numpy().astype(np.float32, copy=True)
 
 
-def _spaces(obs_clip: float, obs_dim: int, action_dim: int, num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
+def _spaces(obs_clip: float, obs_dim: int, action_dim: int,
+            num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
     shape = (obs_dim,) if num_envs is None else (num_envs, obs_dim)
     ashape = (action_dim,) if num_envs is None else (num_envs, action_dim)
     return (spaces.Box(-obs_clip, obs_clip, shape, np.float32), spaces.Box(-1.0, 1.0, ashape, np.float32))

@@ -3,7 +3,8 @@
 The sensors' measurements are the env observation :data:`MEAS_KEY`, a sub-tensordict of named
 entries, one per instrument of :data:`quadwind_trl.envs.sensors.INSTRUMENTS` (``("meas",
 "attitude")``, ...). The policy's ``observation`` is a flat vector whose channels are named by
-:data:`OBSERVATION_CHANNELS`; code that needs a channel looks its index up by name
+:data:`OBSERVATION_CHANNELS` (:func:`observation_channels` for a residual on the acceleration,
+whose own-correction channels are three); code that needs a channel looks its index up by name
 (:func:`observation_index`), never by a number, so the layout can change in this file only.
 The kinematic block (:func:`kinematic_channels`) is shared with the estimator features, which
 import it from here. :data:`INPUT_GROUPS` names the groups of channels a policy can be trained

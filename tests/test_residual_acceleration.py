@@ -128,7 +128,8 @@ def test_the_scales_cover_the_drag_of_the_strongest_wind_within_the_tilt_limit_a
     intensity = max(HORIZONTAL_RL.intensity[1], VERTICAL_RL.intensity[1])
     gust_xy = strongest * (1.0 + 2.0 * intensity)
     drag_xy = 0.5 * v.air_density_kg_m3 * v.drag_area_xy_m2 * gust_xy**2 / v.mass_kg
-    climb = max(regime_config("vertical").trajectories.vertical_climb_rate_m_s + (EnvConfig().trajectories.climb_rate_m_s,))
+    trajectories = regime_config("vertical").trajectories
+    climb = max(trajectories.vertical_climb_rate_m_s + (trajectories.climb_rate_m_s,))
     gust_z = climb + 2.0 * ratio_w * intensity * strongest
     drag_z = 0.5 * v.air_density_kg_m3 * v.drag_area_z_m2 * gust_z**2 / v.mass_kg
     fwd, left, up = res.acceleration_scale_m_s2
@@ -164,7 +165,8 @@ def test_the_effort_penalty_of_a_correction_is_that_of_the_force_it_asks_for():
 
 def test_the_env_takes_three_channels_and_the_observation_shows_the_applied_correction_over_its_scale():
     cfg = _on("dob_inner", "acceleration")
-    assert make_env("horizontal", None, 3, config=cfg, wind_input="truth", compile_step=False).action_spec.shape == (3, 3)
+    rl_env = make_env("horizontal", None, 3, config=cfg, wind_input="truth", compile_step=False)
+    assert rl_env.action_spec.shape == (3, 3)
     env = QuadWindEnv(cfg, batch_size=[3])
     assert "ff_acc" in env.observation_spec.keys() and "ff_wrench" not in env.observation_spec.keys()
     td = env.reset(scenario=scenarios(3, start_step=[-1] * 3))

@@ -80,8 +80,8 @@ def state_views(config: EnvConfig) -> dict[NestedKey, tuple[NestedKey, int]]:
     if residual.acts_on == "wrench":
         return _STATE_VIEWS
     ff = RESIDUAL_ENTRY["wrench"]
-    return {(RESIDUAL_ENTRY[residual.acts_on] if key == ff else key): (view if key != ff else (view[0], residual.channels))
-            for key, view in _STATE_VIEWS.items()}
+    return dict((RESIDUAL_ENTRY[residual.acts_on], (view[0], residual.channels)) if key == ff else (key, view)
+                for key, view in _STATE_VIEWS.items())
 
 
 def _vec(n: int, dim: int, device, dtype=torch.float32) -> Unbounded:

@@ -93,8 +93,8 @@ class QuadSimulator:
         self.on_acceleration = c.residual.acts_on == "acceleration"
         if self.on_acceleration and not getattr(self.controller, "takes_acc_correction", False):
             raise ValueError(f"ResidualConfig.acts_on='acceleration' with the base controller "
-                             f"{type(self.controller).__name__}, which does not add ControlInputs.acc_correction to its "
-                             "desired acceleration; allowed: a law with takes_acc_correction = True (the "
+                             f"{type(self.controller).__name__}, which does not add ControlInputs.acc_correction to "
+                             "its desired acceleration; allowed: a law with takes_acc_correction = True (the "
                              "CascadeController does), or acts_on='wrench'")
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
@@ -288,7 +288,7 @@ class QuadSimulator:
         specific_force = entry(body, "specific_force") if feedback == "truth" else entry(meas, "accel")
         # the residual on the acceleration: the correction the step just set (zero at an episode's
         # start), from the reference heading's frame into the world's, for the wrench of the next step
-        acc_correction = (heading_to_world(entry(state, "control", "ff"), ref.yaw) if self.on_acceleration else None)
+        acc_correction = heading_to_world(entry(state, "control", "ff"), ref.yaw) if self.on_acceleration else None
         inputs = ControlInputs(pos=entry(nav, "pos"), vel=entry(nav, "vel"), rot=nav_rot, omega=nav_omega, ref=ref,
                                specific_force=specific_force, thrust_applied=entry(state, "control", "cmd")[..., :1],
                                wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first,

@@ -42,12 +42,13 @@ class TrackingTask:
     Per control step: ``r = alive_bonus - w_xy |e_xy| - w_z |e_z| - w_ff |u_ff| - w_dff |du_ff|``
     with ``e`` the true position minus the reference and ``u_ff`` the applied residual (0 for a
     row whose physics went non-finite): the wrench in N and N m, or a correction on the
-    acceleration (``ResidualConfig.acts_on``) times the vehicle's mass, the force it asks for in N. Terminated: non-finite physics, tilt beyond
-    ``crash_tilt_deg``, or ground contact later than ``takeoff_grace_s`` after arming (the
-    climb's start). Truncated: the trajectory's end step. Per decision: the mean step reward plus
-    ``crash_penalty`` if the episode terminated. ``device``: the env's, where the task's numbers
-    are made once as tensors for the eager step (None: Python numbers, the same results, slower
-    eagerly); a traced step combines the Python numbers (:mod:`.operands`).
+    acceleration (``ResidualConfig.acts_on``) times the vehicle's mass, the force it asks for in N.
+    Terminated: non-finite physics, tilt beyond ``crash_tilt_deg``, or ground contact later than
+    ``takeoff_grace_s`` after arming (the climb's start). Truncated: the trajectory's end step.
+    Per decision: the mean step reward plus ``crash_penalty`` if the episode terminated.
+    ``device``: the env's, where the task's numbers are made once as tensors for the eager step
+    (None: Python numbers, the same results, slower eagerly); a traced step combines the Python
+    numbers (:mod:`.operands`).
     """
 
     def __init__(self, config: EnvConfig, device: torch.device | str | None = None):

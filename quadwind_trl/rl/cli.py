@@ -130,8 +130,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
                         "(regimes.CLASSICAL_CONTROLLERS) with the constants its validation search chose for the regime")
     p.add_argument("--residual-on", default=ResidualConfig.acts_on, choices=list(RESIDUAL_TARGETS),
                    help="where the residual acts (ResidualConfig.acts_on): wrench (the paper's: thrust and torques "
-                        "added to the base law's output) or acceleration (forward, left, up, in m/s^2, added to the base "
-                        "law's desired acceleration before its tilt limit, where the disturbance observer corrects; "
+                        "added to the base law's output) or acceleration (forward, left, up, in m/s^2, added to the "
+                        "base law's desired acceleration before its tilt limit, where the disturbance observer "
+                        "corrects; "
                         "docs/rl.md, 'The residual on the outer loop'); recorded in the policy's env config; "
                         f"default: {ResidualConfig.acts_on}")
     p.add_argument("--logger", default="csv", choices=["csv", "tensorboard"])

@@ -98,14 +98,15 @@ def _heading_vector(vec: torch.Tensor, yaw: torch.Tensor) -> dict[str, torch.Ten
 
 
 class PolicyObservation(Transform):
-    """Concatenates the 23 policy inputs into ``out_key`` (default ``"observation"``), and after
-    them the base controller's state channels ``base_channels`` (names of
-    :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS`, read from the env's ``base`` entry; default
-    none: the paper's 23).
+    """Concatenates the 23 policy inputs (22 with the residual on the acceleration) into
+    ``out_key`` (default ``"observation"``), and after them the base controller's state channels
+    ``base_channels`` (names of :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS`, read from the
+    env's ``base`` entry; default none: the paper's 23).
 
     Reads ``meas``, ``ref_pos``, ``ref_yaw``, ``pos_error``, ``pd_wrench``, the applied residual
-    (``ff_wrench``, or ``ff_acc`` on the acceleration: ``keys.RESIDUAL_ENTRY``) and ``wind_key`` (``"wind_hat"``, written by :class:`~quadwind_trl.transforms.wind.WindEstimate`);
-    leaves them in place. Stateless.
+    (``ff_wrench``, or ``ff_acc`` on the acceleration: ``keys.RESIDUAL_ENTRY``) and ``wind_key``
+    (``"wind_hat"``, written by :class:`~quadwind_trl.transforms.wind.WindEstimate`); leaves them
+    in place. Stateless.
     """
 
     def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = OBSERVATION_KEY,
