@@ -222,23 +222,67 @@ class MonitorConfig:
         _check_range("MonitorConfig", "hold_s", self.hold_s, 0.0, 60.0)
 
 
+ResidualTarget = Literal["wrench", "acceleration"]
+RESIDUAL_TARGETS: tuple[str, ...] = ("wrench", "acceleration")  # ResidualConfig.acts_on
+
+
 @dataclass(frozen=True)
 class ResidualConfig:
-    """The RL residual wrench added to the PD output (paper, Section "Action")."""
+    """The RL residual: a correction the policy adds to the base law (paper, Section "Action"),
+    scaled, smoothed and slew-limited at every control step.
 
-    action_scale: tuple[float, float, float, float] = (10.0, 5.0, 5.0, 5.0)  # paper, N and N m
-    smoothing: float = 0.7  # paper; weight of the previous applied correction
+    ``acts_on`` chooses where it enters. ``"wrench"`` (the paper's): four channels, collective
+    thrust (N) and body torques (N m), added to the base law's output. ``"acceleration"``: three
+    channels (m/s^2; forward, left and up in the reference heading's frame, the frame of the
+    policy's horizontal inputs), rotated into the world frame and added to the cascade's desired
+    acceleration beside the integral's and the disturbance observer's terms, before the tilt
+    limit: where the classical corrections act, so the policy need not learn the attitude loop
+    (docs/rl.md, "The residual on the outer loop").
+    """
+
+    acts_on: ResidualTarget = "wrench"
+    action_scale: tuple[float, float, float, float] = (10.0, 5.0, 5.0, 5.0)  # paper, N and N m (wrench)
+    smoothing: float = 0.7  # paper; weight of the previous applied correction (either target: a 28 ms filter)
     # N, N m per 10 ms step (20 N/s, 2 N m/s): a full-scale wind correction builds up over about a
     # second, while step-to-step exploration noise cannot kick the airframe (K_R is 10 N m/rad)
     slew_limit_per_step: tuple[float, float, float, float] = (0.2, 0.02, 0.02, 0.02)
+    # m/s^2 per unit action (acceleration), forward / left / up. Horizontal: the drag acceleration
+    # 1/2 rho CdA_xy v^2 / m of the default vehicle (0.038 m^2, 2.59 kg) in the RL regimes'
+    # strongest mean wind, 12 m/s, with a two-sigma gust at their strongest intensity, 0.25:
+    # v = 12 (1 + 2 x 0.25) = 18 m/s gives 2.9 m/s^2. Up: CdA_z (0.10 m^2) at the fastest climb,
+    # 3 m/s, plus two sigma of vertical gust (sigma_w = 0.8 sigma_u, convective, = 2.4 m/s):
+    # v = 7.8 m/s gives 1.4 m/s^2. tests/test_residual_acceleration.py recomputes both
+    acceleration_scale_m_s2: tuple[float, float, float] = (3.0, 3.0, 1.5)
+    # m/s^2 per 10 ms step: a full-scale correction builds up over one second, as the wrench's does
+    acceleration_slew_m_s2_per_step: tuple[float, float, float] = (0.03, 0.03, 0.015)
     # None: off, the residual always applies (every result before the monitor, and the default:
     # a policy is reported with and without it); with_monitor switches it on for evaluation
     monitor: MonitorConfig | None = None
 
+    @property
+    def channels(self) -> int:
+        """The action's width: 4 (thrust, three torques) on the wrench, 3 (forward, left, up) on the acceleration."""
+        return len(self.scale)
+
+    @property
+    def scale(self) -> tuple[float, ...]:
+        """Units per unit action of the target ``acts_on`` chooses (N and N m, or m/s^2)."""
+        return self.action_scale if self.acts_on == "wrench" else self.acceleration_scale_m_s2
+
+    @property
+    def slew(self) -> tuple[float, ...]:
+        """The slew limit per control step of the target ``acts_on`` chooses."""
+        return self.slew_limit_per_step if self.acts_on == "wrench" else self.acceleration_slew_m_s2_per_step
+
     def validate(self) -> None:
+        if self.acts_on not in RESIDUAL_TARGETS:
+            allowed = ", ".join(map(repr, RESIDUAL_TARGETS))
+            raise ValueError(f"ResidualConfig.acts_on={self.acts_on!r}; allowed: {allowed}")
         _check_range("ResidualConfig", "smoothing", self.smoothing, 0.0, 0.999)
-        if min(self.slew_limit_per_step) <= 0:
-            raise ValueError(f"ResidualConfig.slew_limit_per_step={self.slew_limit_per_step!r}; allowed: every entry > 0")
+        for name in ("slew_limit_per_step", "acceleration_scale_m_s2", "acceleration_slew_m_s2_per_step"):
+            value = getattr(self, name)
+            if min(value) <= 0:
+                raise ValueError(f"ResidualConfig.{name}={value!r}; allowed: every entry > 0")
         if self.monitor is not None:
             if not isinstance(self.monitor, MonitorConfig):
                 raise TypeError(f"ResidualConfig.monitor={self.monitor!r}: expected a MonitorConfig or None (off)")
@@ -252,7 +296,9 @@ class RewardConfig:
 
     w_xy: float = 1.0  # paper (alpha)
     w_z: float = 1.0  # paper (beta); the regimes' values are presets in quadwind_trl.regimes
-    w_ff: float = 0.01  # paper (gamma), on the wrench in N and N m
+    # paper (gamma), on the wrench in N and N m; a correction on the acceleration is weighed as the
+    # force it asks of the vehicle (times the mass, in N), so the weights keep their units
+    w_ff: float = 0.01
     w_dff: float = 0.02  # paper (delta)
     alive_bonus: float = 0.05  # paper
     crash_penalty: float = -100.0  # paper

@@ -35,7 +35,6 @@ from .rl.envs import Regime, WindInput, check_regime, make_env, policy_env_setti
 from .validation import check_action, load_checkpoint
 
 ENV_IDS = {"horizontal": "QuadWind-Horizontal-v0", "vertical": "QuadWind-Vertical-v0"}
-ACTION_DIM = 4
 
 
 def shipped_policy_inputs(regime: Regime, estimator) -> dict:
@@ -62,6 +61,8 @@ class _BatchedStack:
         self.num_envs = num_envs
         # the paper's 23 inputs, or more with env_kwargs such as memory_frames or base_state_inputs
         self.obs_dim = self.env.observation_spec[OBSERVATION_KEY].shape[-1]
+        # 4 (the residual on the wrench) or 3 (on the acceleration: env_kwargs' config)
+        self.action_dim = self.env.action_spec.shape[-1]
         self.td: TensorDictBase | None = None
 
     def reset(self, seed: int | None, scenario: TensorDictBase | None) -> np.ndarray:
@@ -72,10 +73,10 @@ class _BatchedStack:
 
     @torch.no_grad()
     def step(self, action: np.ndarray) -> tuple[TensorDictBase, TensorDictBase]:
-        """One decision for every sub-env, ``action`` ``[num_envs, 4]`` (the env checks the shape):
+        """One decision for every sub-env, ``action`` ``[num_envs, action_dim]`` (the env checks the shape):
         ``(transition, next root)``, finished rows already reset."""
         action = torch.as_tensor(np.asarray(action, dtype=np.float32))
-        check_action(action, self.num_envs, ACTION_DIM)  # before the tensordict's own batch check
+        check_action(action, self.num_envs, self.action_dim)  # before the tensordict's own batch check
         self.td.set("action", action)
         transition, self.td = self.env.step_and_maybe_reset(self.td)
         return transition, self.td
@@ -85,9 +86,10 @@ class _BatchedStack:
         return td.get(OBSERVATION_KEY).numpy().astype(np.float32, copy=True)
 
 
-def _spaces(obs_clip: float, obs_dim: int, num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
+def _spaces(obs_clip: float, obs_dim: int, action_dim: int,
+            num_envs: int | None = None) -> tuple[spaces.Box, spaces.Box]:
     shape = (obs_dim,) if num_envs is None else (num_envs, obs_dim)
-    ashape = (ACTION_DIM,) if num_envs is None else (num_envs, ACTION_DIM)
+    ashape = (action_dim,) if num_envs is None else (num_envs, action_dim)
     return (spaces.Box(-obs_clip, obs_clip, shape, np.float32), spaces.Box(-1.0, 1.0, ashape, np.float32))
 
 
@@ -102,8 +104,8 @@ class QuadWindVectorEnv(gymnasium.vector.VectorEnv):
         self.stack = _BatchedStack(regime, num_envs, wind_input, estimator, vecnorm_state, obs_clip, seed, env_kwargs)
         self.num_envs = num_envs
         obs_dim = self.stack.obs_dim
-        self.single_observation_space, self.single_action_space = _spaces(obs_clip, obs_dim)
-        self.observation_space, self.action_space = _spaces(obs_clip, obs_dim, num_envs)
+        self.single_observation_space, self.single_action_space = _spaces(obs_clip, obs_dim, self.stack.action_dim)
+        self.observation_space, self.action_space = _spaces(obs_clip, obs_dim, self.stack.action_dim, num_envs)
         self.regime = regime
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -133,7 +135,7 @@ class QuadWindEnv(gymnasium.Env):
     def __init__(self, regime: Regime = "horizontal", *, wind_input: WindInput = "estimate", estimator: str | None = None,
                  vecnorm_state: dict | None = None, obs_clip: float = 10.0, seed: int = 0, **env_kwargs):
         self.stack = _BatchedStack(regime, 1, wind_input, estimator, vecnorm_state, obs_clip, seed, env_kwargs)
-        self.observation_space, self.action_space = _spaces(obs_clip, self.stack.obs_dim)
+        self.observation_space, self.action_space = _spaces(obs_clip, self.stack.obs_dim, self.stack.action_dim)
         self.regime = regime
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -3,7 +3,8 @@
 The sensors' measurements are the env observation :data:`MEAS_KEY`, a sub-tensordict of named
 entries, one per instrument of :data:`quadwind_trl.envs.sensors.INSTRUMENTS` (``("meas",
 "attitude")``, ...). The policy's ``observation`` is a flat vector whose channels are named by
-:data:`OBSERVATION_CHANNELS`; code that needs a channel looks its index up by name
+:data:`OBSERVATION_CHANNELS` (:func:`observation_channels` for a residual on the acceleration,
+whose own-correction channels are three); code that needs a channel looks its index up by name
 (:func:`observation_index`), never by a number, so the layout can change in this file only.
 The kinematic block (:func:`kinematic_channels`) is shared with the estimator features, which
 import it from here. :data:`INPUT_GROUPS` names the groups of channels a policy can be trained
@@ -54,21 +55,45 @@ def kinematic_channels(yaw_mode: YawMode = "ref_relative") -> tuple[str, ...]:
     )  # fmt: skip
 
 
-#: the policy observation, channel by channel (heading frame: forward, left; see transforms.observation)
-OBSERVATION_CHANNELS: tuple[str, ...] = ("alt", "vel_fwd", "vel_left") + kinematic_channels("ref_relative")[3:] + (
+#: the observation entry holding the residual applied over the last control step, by what the
+#: residual acts on (``ResidualConfig.acts_on``): the wrench (N, N m) or the desired acceleration (m/s^2)
+RESIDUAL_ENTRY: dict[str, str] = {"wrench": "ff_wrench", "acceleration": "ff_acc"}
+#: the policy observation's last channels: that residual divided by its action scale, by ``acts_on``
+#: (the acceleration's in the reference heading's frame, as it is applied)
+RESIDUAL_CHANNELS: dict[str, tuple[str, ...]] = {
+    "wrench": ("ff_T", "ff_x", "ff_y", "ff_z"),
+    "acceleration": ("ff_acc_fwd", "ff_acc_left", "ff_acc_U"),
+}
+_SHARED_CHANNELS: tuple[str, ...] = ("alt", "vel_fwd", "vel_left") + kinematic_channels("ref_relative")[3:] + (
     "wind_fwd", "wind_left",
     "err_fwd", "err_left", "err_U",
     "pd_thrust_over_weight",
-    "ff_T", "ff_x", "ff_y", "ff_z",
 )  # fmt: skip
+
+
+def observation_channels(residual_on: str = "wrench") -> tuple[str, ...]:
+    """The policy observation, channel by channel, for a residual on ``residual_on``
+    (``ResidualConfig.acts_on``; heading frame: forward, left; see transforms.observation)."""
+    if residual_on not in RESIDUAL_CHANNELS:
+        raise ValueError(f"residual_on={residual_on!r}; allowed: {tuple(RESIDUAL_CHANNELS)}")
+    return _SHARED_CHANNELS + RESIDUAL_CHANNELS[residual_on]
+
+
+#: the policy observation of the paper's residual (on the wrench), channel by channel
+OBSERVATION_CHANNELS: tuple[str, ...] = observation_channels("wrench")
 OBSERVATION_DIM = len(OBSERVATION_CHANNELS)
 
 
 def observation_index(name: str) -> int:
-    """Index of channel ``name`` in the policy observation."""
-    if name not in OBSERVATION_CHANNELS:
-        raise ValueError(f"observation channel {name!r} unknown; channels: {OBSERVATION_CHANNELS}")
-    return OBSERVATION_CHANNELS.index(name)
+    """Index of channel ``name`` in the policy observation (either residual's layout: they differ
+    only in their last channels, which start at the same index)."""
+    for channels in RESIDUAL_CHANNELS.values():
+        if name in channels:
+            return len(_SHARED_CHANNELS) + channels.index(name)
+    if name not in _SHARED_CHANNELS:
+        raise ValueError(f"observation channel {name!r} unknown; channels: {_SHARED_CHANNELS} followed by those of "
+                         f"the residual, {RESIDUAL_CHANNELS}")
+    return _SHARED_CHANNELS.index(name)
 
 
 #: the two wind channels of the observation (what ``wind_input="zero"`` zeroes)
@@ -85,7 +110,7 @@ INPUT_GROUPS: dict[str, tuple[str, ...]] = {
     "accel": ("acc_bx", "acc_by", "acc_bz"),
     "pd_thrust": ("pd_thrust_over_weight",),
 }
-#: the channels ``zero_inputs`` may name: every one but the wind's
+#: the channels ``zero_inputs`` may name (of the residual on the wrench): every one but the wind's
 ZEROABLE_CHANNELS: tuple[str, ...] = tuple(c for c in OBSERVATION_CHANNELS if c not in WIND_CHANNELS)
 
 

@@ -135,6 +135,8 @@ CONFIG_RANGES: dict[str, Range] = {
     "ControllerConfig.k_att": Range(0.0, 1e4, "N m / rad"),
     "ControllerConfig.k_rate": Range(0.0, 1e4, "N m s / rad"),
     "ResidualConfig.action_scale": Range(0.0, 1e3, "N and N m per unit action"),
+    "ResidualConfig.acceleration_scale_m_s2": Range(0.0, 100.0, "m/s^2 per unit action, positive"),
+    "ResidualConfig.acceleration_slew_m_s2_per_step": Range(0.0, 100.0, "m/s^2 per control step, positive"),
     "TimingConfig.physics_dt_s": Range(1e-5, 0.1, "s, positive"),
     "TimingConfig.control_substeps": Range(1, 1000, "physics substeps per control step", integer=True),
     "TimingConfig.log_every_control_steps": Range(1, 1000, "control steps per log sample", integer=True),
@@ -221,8 +223,9 @@ def check_action(action: torch.Tensor | None, batch: int, dim: int) -> None:
         raise ValueError(f"action is missing: the step needs an 'action' entry of shape ({batch}, {dim})")
     if tuple(action.shape) != (batch, dim):
         raise ValueError(
-            f"action has shape {tuple(action.shape)}, expected ({batch}, {dim}): one residual "
-            f"(thrust, roll, pitch, yaw) in [-1, 1] per sub-env"
+            f"action has shape {tuple(action.shape)}, expected ({batch}, {dim}): one residual in [-1, 1]^{dim} per "
+            "sub-env (ResidualConfig.acts_on: thrust and three torques on the wrench, forward, left and up on the "
+            "acceleration)"
         )
 
 

@@ -214,7 +214,7 @@ def _saved(tmp_path: Path, name: str, payload) -> Path:
          ["absent.pt", "--untrained-estimator"]),
         ("another observation layout", lambda d: load_policy(_saved(d, "policy.pt", {
             **torch.load(CHECKPOINTS / "policy_horizontal.pt", weights_only=True), "observation_channels": ["a", "b"]})),
-         ValueError, ["policy.pt", "another observation layout", "['a', 'b']", "OBSERVATION_CHANNELS (23 channels)"]),
+         ValueError, ["policy.pt", "another observation layout", "['a', 'b']", "observation_channels (23 channels"]),
     ],
     ids=lambda c: c if isinstance(c, str) else "",
 )

@@ -127,7 +127,8 @@ def test_the_levers_off_leave_the_stack_and_the_networks_as_before(bundle):
     plain = make_env("horizontal", bundle, 1, config=short_config(), compile_step=False)
     assert not any(isinstance(t, (ObservationStack, PrivilegedObservation)) for t in plain.transform)
     assert plain.observation_spec["observation"].shape[-1] == OBSERVATION_DIM
-    assert network_dims(RLEnvSpec()) == {"obs_dim": OBSERVATION_DIM, "privileged_dim": 0, "recurrent_hidden": 0}
+    assert network_dims(RLEnvSpec()) == {"obs_dim": OBSERVATION_DIM, "privileged_dim": 0, "recurrent_hidden": 0,
+                                         "action_dim": 4}
     actor, value = build_actor_critic(PPOConfig(hidden=(8, 8)))
     assert value.in_keys == ["observation"] and list(value.state_dict()) == ["module.0.weight", "module.0.bias",
                                                                               "module.2.weight", "module.2.bias",

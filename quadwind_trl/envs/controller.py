@@ -55,6 +55,10 @@ is this cascade with up to two classical additions to its outer loop, each a con
     the outer loop's desired acceleration, as the observer's is: the cascade turns it into tilt
     and thrust.
 
+A residual policy on the acceleration (``ResidualConfig.acts_on="acceleration"``) reaches the
+same place: its correction (``ControlInputs.acc_correction``, world frame) is added to ``a_des``
+beside these terms, before the tilt limit.
+
 The law's state (the integral; the observer's or L1's force, its modelled thrust and L1's
 predicted velocity) lives in the simulator's state TensorDict (``state["base"]``); nothing here
 holds state between calls.
@@ -246,6 +250,9 @@ class ControlInputs:
     wind_ne: Tensor | None  # [N, 2] m/s (north, east): the wind estimate given to the step, if any
     armed: Tensor  # [N, 1] bool: the motors are armed (the integral and the observer's force advance)
     first: bool  # an episode's first instant: nothing has been applied yet, the state stays as it starts
+    # [N, 3] m/s^2, world: the residual policy's correction to the desired acceleration
+    # (ResidualConfig.acts_on="acceleration"; None: the residual acts on the wrench, or there is none)
+    acc_correction: Tensor | None = None
 
 
 class BaseController(Protocol):
@@ -254,6 +261,9 @@ class BaseController(Protocol):
     or None for a stateless law)."""
 
     needs_wind: bool  # it reads ControlInputs.wind_ne (the env then takes keys.BASE_WIND_KEY as an input)
+    # it adds ControlInputs.acc_correction to its desired acceleration: a residual on the
+    # acceleration can act through it (the simulator refuses that residual on a law without this)
+    takes_acc_correction: bool
 
     def init_state(self, n: int, device: torch.device) -> TensorDict | None:
         """The law's state at an episode's start."""
@@ -269,6 +279,7 @@ class CascadeController:
     def __init__(self, pd: ControllerParams, extra: ClassicalParams):
         self.pd, self.extra = pd, extra
         self.needs_wind = extra.disturbance == "wind_model"
+        self.takes_acc_correction = True
         self._observer = extra.disturbance == "observer"
         self._l1 = extra.disturbance == "l1"
 
@@ -294,6 +305,8 @@ class CascadeController:
         if force is not None:
             cancel = force / ex.mass
             acc_extra = -cancel if acc_extra is None else acc_extra - cancel
+        if x.acc_correction is not None:  # the residual on the outer loop, beside the classical terms
+            acc_extra = x.acc_correction if acc_extra is None else acc_extra + x.acc_correction
         r = x.ref
         out = pd_control(x.pos, x.vel, x.rot, x.omega, r.pos, r.vel, r.acc, r.jerk, r.yaw, r.yaw_rate, self.pd, acc_extra)
         if state is None:

@@ -12,7 +12,7 @@ from torchrl.data import Binary, Bounded, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from ..config import EnvConfig
-from ..keys import BASE_STATE_KEY, BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY
+from ..keys import BASE_STATE_KEY, BASE_WIND_KEY, MEAS_KEY, MONITOR_KEY, RESIDUAL_ENTRY
 from ..validation import check_action
 from .scenarios import RegimeRanges, make_scenarios, random_scenarios, validate_scenarios
 from .sensors import INSTRUMENTS
@@ -51,7 +51,8 @@ class ScenarioSampler:
 
 
 # observation entry -> (simulator state entry it shows, width): the float entries of the
-# observation are views of the state, declared once for the specs and the observation
+# observation are views of the state, declared once for the specs and the observation (those of
+# the residual on the wrench: state_views gives the residual's entry its name and width)
 _STATE_VIEWS: dict[NestedKey, tuple[NestedKey, int]] = {
     "ref_pos": (("ref", "pos"), 3),
     "ref_vel": (("ref", "vel"), 3),
@@ -70,6 +71,17 @@ _STATE_VIEWS: dict[NestedKey, tuple[NestedKey, int]] = {
     ("truth", "wind"): (("wind", "total"), 3),  # the air velocity the vehicle flies in
     ("truth", "mean_wind"): (("wind", "mean"), 3),  # turbulence-free
 }
+
+
+def state_views(config: EnvConfig) -> dict[NestedKey, tuple[NestedKey, int]]:
+    """The observation's views of the state for ``config``: the applied residual is
+    ``RESIDUAL_ENTRY[acts_on]`` (``ff_wrench`` [4] or ``ff_acc`` [3]), in its place."""
+    residual = config.residual
+    if residual.acts_on == "wrench":
+        return _STATE_VIEWS
+    ff = RESIDUAL_ENTRY["wrench"]
+    return dict((RESIDUAL_ENTRY[residual.acts_on], (view[0], residual.channels)) if key == ff else (key, view)
+                for key, view in _STATE_VIEWS.items())
 
 
 def _vec(n: int, dim: int, device, dtype=torch.float32) -> Unbounded:
@@ -105,6 +117,9 @@ class QuadWindEnv(EnvBase):
     torques), scaled, smoothed, slew-limited and added to the base controller's output
     (``ControllerConfig``: the paper's PD cascade by default, or PID, wind feed-forward or a
     disturbance observer; :mod:`quadwind_trl.envs.controller`): ``action = 0`` is the base law.
+    With ``ResidualConfig.acts_on="acceleration"`` it is ``[-1, 1]^3`` (forward, left, up in the
+    reference heading's frame), scaled, smoothed, slew-limited and added to the base law's
+    desired acceleration instead, from the next control step on; ``action = 0`` is again the base law.
     A wind feed-forward base law also takes ``base_wind_ne`` [2] (north, east, m/s;
     :data:`~quadwind_trl.keys.BASE_WIND_KEY`) as an input of every step, beside the action
     (``transforms.BaseWindInput`` gives it from the wind estimate). One step is ``TimingConfig.hold_control_steps`` 10 ms control steps (5
@@ -122,7 +137,8 @@ class QuadWindEnv(EnvBase):
       (``ControllerConfig.feedback``: the truth, the raw sensors, or the navigation filter);
     * ``pos_error`` [3]: ``nav_pos`` minus the reference: the tracking error the vehicle perceives;
     * ``pd_wrench`` [4]: the PD output the next action is added to; ``ff_wrench`` [4]: the
-      correction applied over the last step; ``cmd_wrench`` [4]: the total command applied;
+      correction applied over the last step (on the acceleration: ``ff_acc`` [3], m/s^2, forward,
+      left, up, the correction the next ``pd_wrench`` holds); ``cmd_wrench`` [4]: the total command applied;
     * ``tilt_cmd`` [1] (rad), ``tilt_saturated`` [1]: the PD's commanded tilt and its limit flag;
     * ``monitor_active`` [1] (only with ``ResidualConfig.monitor`` on): the runtime monitor held
       the residual at zero over the last control step (:mod:`quadwind_trl.envs.monitor`);
@@ -179,6 +195,7 @@ class QuadWindEnv(EnvBase):
         super().__init__(device=device if device is not None else "cpu", batch_size=batch_size)
         self.config = (config or EnvConfig()).validate()
         self.sim = QuadSimulator(self.config, self.device, controller=controller)
+        self._views = state_views(self.config)
         self.scenario_sampler = scenario_sampler or ScenarioSampler()
         if task is not None:
             missing = [m for m in ("step_reward", "done", "decision_reward") if not callable(getattr(task, m, None))]
@@ -205,7 +222,7 @@ class QuadWindEnv(EnvBase):
         n, dev = self.batch_size[0], self.device
         spec = Composite({MEAS_KEY: Composite({i.name: _vec(n, i.width, dev) for i in INSTRUMENTS}, shape=(n,), device=dev),
                           "truth": Composite(shape=(n,), device=dev)}, shape=(n,), device=dev)
-        for key, (_, width) in _STATE_VIEWS.items():
+        for key, (_, width) in self._views.items():
             spec[key] = _vec(n, width, dev)
         spec["pos_error"] = _vec(n, 3, dev)
         spec["tilt_saturated"] = Binary(n=1, shape=(n, 1), device=dev, dtype=torch.bool)
@@ -216,7 +233,7 @@ class QuadWindEnv(EnvBase):
         if base is not None:  # the base law's state (a policy may read it: transforms.PolicyObservation)
             spec[BASE_STATE_KEY] = Composite({k: _vec(n, v.shape[-1], dev) for k, v in base.items()}, shape=(n,), device=dev)
         self.observation_spec = spec
-        self.action_spec = Bounded(low=-1.0, high=1.0, shape=(n, 4), device=dev)
+        self.action_spec = Bounded(low=-1.0, high=1.0, shape=(n, self.config.residual.channels), device=dev)
         if self.sim.controller.needs_wind:
             self.state_spec = Composite({BASE_WIND_KEY: _vec(n, 2, dev)}, shape=(n,), device=dev)
         self.reward_spec = Unbounded(shape=(n, 1), device=dev)
@@ -256,7 +273,7 @@ class QuadWindEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict.get("action", None)
-        check_action(action, self.batch_size[0], 4)
+        check_action(action, self.batch_size[0], self.config.residual.channels)
         wind_ne = None
         if self.sim.controller.needs_wind:
             wind_ne = tensordict.get(BASE_WIND_KEY, None)
@@ -287,7 +304,7 @@ class QuadWindEnv(EnvBase):
             "tilt_saturated": entry(s, "control", "tilt_saturated"),
             "step": entry(s, "step").unsqueeze(-1),
         }
-        for key, (source, _) in _STATE_VIEWS.items():
+        for key, (source, _) in self._views.items():
             *parents, name = (key,) if isinstance(key, str) else key
             node = entries
             for parent in parents:

@@ -209,3 +209,11 @@ def vee_antisymmetric(m: Tensor) -> Tensor:
     """``1/2 vee(m^T - m)`` (``vee`` the vector of a skew-symmetric matrix):
     ``(m_12 - m_21, m_20 - m_02, m_01 - m_10) / 2``."""
     return torch.linalg.vecdot(m.flatten(-2).unsqueeze(-2), _tables(m.device, m.dtype).vee_map)
+
+
+def heading_to_world(vec: Tensor, yaw: Tensor) -> Tensor:
+    """``[N, 3]`` (forward, left, up) in the frame of heading ``yaw`` ``[N, 1]`` (rad from east,
+    counter-clockwise) -> world ENU: a rotation about the vertical by ``yaw``."""
+    c, s = torch.cos(yaw), torch.sin(yaw)
+    fwd, left = vec[..., :1], vec[..., 1:2]
+    return torch.cat((c * fwd - s * left, s * fwd + c * left, vec[..., 2:]), -1)

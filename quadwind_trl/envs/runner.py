@@ -18,7 +18,7 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type, step_mdp
 from tqdm.auto import tqdm
 
 from ..config import EnvConfig
-from ..keys import MEAS_KEY
+from ..keys import MEAS_KEY, RESIDUAL_ENTRY
 from .quad_env import QuadWindEnv
 from .scenarios import validate_scenarios
 from .simulator import trajectory_library
@@ -27,11 +27,13 @@ NestedKey = str | tuple[str, ...]
 Policy = Callable[[TensorDictBase], TensorDictBase]
 AUTO_PROGRESS_DELAY_S = 3.0
 
+# the 10 Hz record's entries by default (the applied residual's entry is named by what it acts on:
+# default_log_keys)
 DEFAULT_LOG_KEYS: tuple[NestedKey, ...] = (
     MEAS_KEY,
     "cmd_wrench",
     "pd_wrench",
-    "ff_wrench",
+    RESIDUAL_ENTRY["wrench"],
     "ref_pos",
     "tilt_cmd",
     "tilt_saturated",
@@ -41,6 +43,12 @@ DEFAULT_LOG_KEYS: tuple[NestedKey, ...] = (
     ("truth", "wind"),
     ("truth", "mean_wind"),
 )
+
+
+def default_log_keys(config: EnvConfig) -> tuple[NestedKey, ...]:
+    """:data:`DEFAULT_LOG_KEYS` for an env of ``config``: its residual's entry (``ff_wrench`` or ``ff_acc``)."""
+    ff = RESIDUAL_ENTRY["wrench"]
+    return tuple(RESIDUAL_ENTRY[config.residual.acts_on] if key == ff else key for key in DEFAULT_LOG_KEYS)
 
 
 @dataclass
@@ -96,7 +104,7 @@ def iter_flights(
     env: EnvBase,
     scenarios: TensorDictBase,
     policy: Policy | None = None,
-    log_keys: Sequence[NestedKey] = DEFAULT_LOG_KEYS,
+    log_keys: Sequence[NestedKey] | None = None,
     progress: bool | None = None,
     skip: Tensor | None = None,
     chunks: range | None = None,
@@ -106,7 +114,8 @@ def iter_flights(
     The position error is scored at every env step (every control step, or every
     ``TimingConfig.hold_control_steps``-th when the env holds actions) after the pattern starts (for horizontal
     flights: after the climb) up to the end of the episode; the flight record holds every 10th
-    control step from the episode start. ``policy=None`` flies the PD baseline (zero action).
+    control step from the episode start (``log_keys``; None: :func:`default_log_keys`).
+    ``policy=None`` flies the PD baseline (zero action).
     ``progress``: a tqdm bar (``None``, the default: shown once the flights have taken
     ``AUTO_PROGRESS_DELAY_S``; ``True`` at once; ``False`` never).
     ``skip`` (bool ``[M]``): flights already flown; a chunk of only those is not flown again (the
@@ -115,6 +124,7 @@ def iter_flights(
     run: a batch's flights replay bit for bit only within the same batch.
     """
     base = _base(env)
+    log_keys = default_log_keys(base.config) if log_keys is None else log_keys
     validate_scenarios(scenarios)
     n_env = base.batch_size[0]
     log_every = base.config.timing.log_every_control_steps
@@ -188,7 +198,7 @@ def _fly_chunk(
     nav_sq_z = torch.zeros(n, device=dev)
     count = torch.zeros(n, device=dev)
     crashed = torch.zeros(n, dtype=torch.bool, device=dev)
-    zero_action = torch.zeros(n, 4, device=dev)
+    zero_action = base.action_spec.zero()
     timing = base.config.timing
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for i in range(1, -(-num_steps // timing.hold_control_steps) + 1):

@@ -16,7 +16,9 @@ mode phases and amplitudes or cube) and the sensor noise seed with its streams' 
 * ``nav``: the navigation solution the PD flies on (``pos``, ``vel``, ``baro_offset``);
 * ``ref``: the reference (``pos``, ``vel``, ``acc``, ``yaw``);
 * ``control``: the base controller's output (``pd_wrench``, ``tilt_cmd``, ``tilt_saturated``),
-  the residual ``ff`` and the total command ``cmd``; with the runtime monitor on
+  the residual ``ff`` (the applied correction: ``[N, 4]`` N and N m on the wrench, ``[N, 3]``
+  m/s^2 forward, left, up on the acceleration; ``ResidualConfig.acts_on``) and the total command
+  ``cmd``; with the runtime monitor on
   (``ResidualConfig.monitor``), also ``monitor_left``: its steps left of the base law alone
   (:mod:`~quadwind_trl.envs.monitor`);
 * ``base`` (only for a base controller with state, e.g. integral action or a disturbance
@@ -31,10 +33,12 @@ One control step (10 ms) from state ``k`` (which already holds the wind, referen
 and PD wrench *at* step ``k``):
 
 1. residual: scale the action, smooth it, limit its slew (zero it while the runtime monitor, if
-   on, holds it), add it to the PD wrench;
+   on, holds it); on the wrench, add it to the PD wrench;
 2. allocate rotor speeds (motors off before arming) and run 5 physics substeps with the wind held;
 3. at step ``k + 1``: sample the wind (advecting the frozen turbulence), the reference, the
-   sensors, and the PD wrench for the next step.
+   sensors, and the PD wrench for the next step; a residual on the acceleration enters that
+   wrench's outer loop, so the correction set at step ``k`` acts from step ``k + 1``, one control
+   step (10 ms) later than a residual on the wrench.
 """
 from __future__ import annotations
 
@@ -49,7 +53,8 @@ from .controller import BaseController, ControlInputs, make_base_controller
 from .monitor import MonitorParams, monitor_gate
 from .navigation import NavigationParams, init_navigation, update_navigation
 from .operands import operands
-from .rotations import euler_from_rotmat, euler_to_rotmat, quat_from_euler, quat_to_rotmat, rotate_inverse
+from .rotations import (euler_from_rotmat, euler_to_rotmat, heading_to_world, quat_from_euler, quat_to_rotmat,
+                        rotate_inverse)
 from .scenarios import SCENARIO_FIELDS
 from .sensors import SensorSuite
 from .tensordicts import entry, unchecked
@@ -85,13 +90,19 @@ class QuadSimulator:
         self.physics_constants = step_constants(self.vehicle, c.timing.physics_dt_s, dev)
         self._level = torch.tensor([1.0, 0.0, 0.0, 0.0], device=dev)  # the attitude a broken row is parked in
         self.controller = controller or make_base_controller(c.controller, c.vehicle, c.timing.control_dt_s, dev)
+        self.on_acceleration = c.residual.acts_on == "acceleration"
+        if self.on_acceleration and not getattr(self.controller, "takes_acc_correction", False):
+            raise ValueError(f"ResidualConfig.acts_on='acceleration' with the base controller "
+                             f"{type(self.controller).__name__}, which does not add ControlInputs.acc_correction to "
+                             "its desired acceleration; allowed: a law with takes_acc_correction = True (the "
+                             "CascadeController does), or acts_on='wrench'")
         self.trajectories = trajectory_library(c, dev)
         self.atmosphere = Atmosphere(c.wind, c.turbulence, dev)
         self.sensors = SensorSuite(c.sensors, c.timing.control_dt_s, dev)
         self.imu_substeps = self.sensors.imu_substeps(c.timing.control_substeps)
         self.navigation = NavigationParams.from_config(c.navigation)
-        self.action_scale = torch.tensor(c.residual.action_scale, device=dev)
-        self.slew_limit = torch.tensor(c.residual.slew_limit_per_step, device=dev)
+        self.action_scale = torch.tensor(c.residual.scale, device=dev)
+        self.slew_limit = torch.tensor(c.residual.slew, device=dev)
         # the residual smoother's weights and the unarmed command: Python numbers for a traced
         # step, tensors for the eager one (operands.py)
         self._numbers = (c.residual.smoothing, 1.0 - c.residual.smoothing, 0.0)
@@ -131,7 +142,8 @@ class QuadSimulator:
             specific_force=rotate_inverse(quat_to_rotmat(quat), gravity),
             batch_size=[n],
         )
-        control = TensorDict(ff=torch.zeros(n, 4, device=self.device), cmd=torch.zeros(n, 4, device=self.device),
+        control = TensorDict(ff=torch.zeros(n, self.cfg.residual.channels, device=self.device),
+                             cmd=torch.zeros(n, 4, device=self.device),
                              batch_size=[n])
         if self.monitor is not None:  # a config constant: with the monitor off the state is as before it existed
             control["monitor_left"] = torch.zeros(n, 1, dtype=torch.int64, device=self.device)
@@ -165,7 +177,8 @@ class QuadSimulator:
     # --- one control step ---------------------------------------------------------------------
 
     def step(self, params: TensorDict, state: TensorDict, action: Tensor, wind_ne: Tensor | None = None) -> TensorDict:
-        """The state one control step on, every row under residual ``action`` in ``[-1, 1]^4``;
+        """The state one control step on, every row under residual ``action`` in ``[-1, 1]^C``
+        (``C = ResidualConfig.channels``: 4 on the wrench, 3 on the acceleration);
         ``wind_ne`` ``[N, 2]`` (north, east, m/s): the wind estimate a wind feed-forward base
         controller flies the next instant's law on (held over the step, as the action is)."""
         ff_prev = entry(state, "control", "ff")
@@ -176,11 +189,17 @@ class QuadSimulator:
         monitor = {}
         if self.monitor is not None:  # a config constant: off, the step runs the same ops as before the monitor
             height_error = entry(state, "nav", "pos")[..., 2:] - entry(state, "ref", "pos")[..., 2:]
-            ff, monitor["monitor_left"] = monitor_gate(ff, entry(state, "control", "pd_wrench")[..., :1] + ff[..., :1],
-                                                       self._cos_tilt(state), height_error,
+            # the thrust commanded over this step: on the acceleration the base wrench already holds the
+            # correction (of the step before), so the gate's zero reaches the wrench one step later
+            thrust = entry(state, "control", "pd_wrench")[..., :1]
+            thrust = thrust if self.on_acceleration else thrust + ff[..., :1]
+            ff, monitor["monitor_left"] = monitor_gate(ff, thrust, self._cos_tilt(state), height_error,
                                                        entry(state, "control", "monitor_left"), self.monitor)
         armed = (entry(state, "step") >= self.arm_step).unsqueeze(-1)
-        cmd = torch.where(armed, entry(state, "control", "pd_wrench") + ff, zero)  # what is applied: motors off before arming
+        # what is applied (motors off before arming): on the acceleration the base wrench is the
+        # command, the correction being inside its outer loop
+        wrench = entry(state, "control", "pd_wrench")
+        cmd = torch.where(armed, wrench if self.on_acceleration else wrench + ff, zero)
         rotor_cmd = torch.where(armed, allocate(cmd, self.vehicle), zero)
 
         body = RigidBody(*(entry(state, "body", k) for k in RigidBody._fields))
@@ -267,9 +286,13 @@ class QuadSimulator:
             nav_omega = entry(meas, "gyro")
         # the accelerometer as the law's feedback reads it: the true specific force with truth feedback
         specific_force = entry(body, "specific_force") if feedback == "truth" else entry(meas, "accel")
+        # the residual on the acceleration: the correction the step just set (zero at an episode's
+        # start), from the reference heading's frame into the world's, for the wrench of the next step
+        acc_correction = heading_to_world(entry(state, "control", "ff"), ref.yaw) if self.on_acceleration else None
         inputs = ControlInputs(pos=entry(nav, "pos"), vel=entry(nav, "vel"), rot=nav_rot, omega=nav_omega, ref=ref,
                                specific_force=specific_force, thrust_applied=entry(state, "control", "cmd")[..., :1],
-                               wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first)
+                               wind_ne=wind_ne, armed=(step >= self.arm_step).unsqueeze(-1), first=first,
+                               acc_correction=acc_correction)
         pd, base = self.controller(inputs, state.get("base", None))
 
         n = state.batch_size

@@ -41,12 +41,14 @@ class TrackingTask:
 
     Per control step: ``r = alive_bonus - w_xy |e_xy| - w_z |e_z| - w_ff |u_ff| - w_dff |du_ff|``
     with ``e`` the true position minus the reference and ``u_ff`` the applied residual (0 for a
-    row whose physics went non-finite). Terminated: non-finite physics, tilt beyond
-    ``crash_tilt_deg``, or ground contact later than ``takeoff_grace_s`` after arming (the
-    climb's start). Truncated: the trajectory's end step. Per decision: the mean step reward plus
-    ``crash_penalty`` if the episode terminated. ``device``: the env's, where the task's numbers
-    are made once as tensors for the eager step (None: Python numbers, the same results, slower
-    eagerly); a traced step combines the Python numbers (:mod:`.operands`).
+    row whose physics went non-finite): the wrench in N and N m, or a correction on the
+    acceleration (``ResidualConfig.acts_on``) times the vehicle's mass, the force it asks for in N.
+    Terminated: non-finite physics, tilt beyond ``crash_tilt_deg``, or ground contact later than
+    ``takeoff_grace_s`` after arming (the climb's start). Truncated: the trajectory's end step.
+    Per decision: the mean step reward plus ``crash_penalty`` if the episode terminated.
+    ``device``: the env's, where the task's numbers are made once as tensors for the eager step
+    (None: Python numbers, the same results, slower eagerly); a traced step combines the Python
+    numbers (:mod:`.operands`).
     """
 
     def __init__(self, config: EnvConfig, device: torch.device | str | None = None):
@@ -56,6 +58,8 @@ class TrackingTask:
         # trajectory library's: arm_time_s on the control clock)
         self.grace_steps = int(round(config.trajectories.arm_time_s / dt)) + int(round(reward.takeoff_grace_s / dt))
         self.cos_crash_tilt = math.cos(math.radians(reward.crash_tilt_deg))
+        # N per unit of the applied residual: the effort weights are per N (and N m) of wrench
+        self.ff_to_newton = config.vehicle.mass_kg if config.residual.acts_on == "acceleration" else 1.0
         self._numbers = _operands(self, None)
         self._tensors = self._numbers if device is None else _operands(self, device)
 
@@ -106,7 +110,9 @@ def _operands(task: TrackingTask, device: torch.device | str | None) -> _Operand
     (``aten::_to_copy``), a tensor not at all, and the tensor holds the value that conversion
     gives, so the results are the same bits."""
     rw = task.reward
-    floats = (rw.alive_bonus, rw.w_xy, rw.w_z, rw.w_ff, rw.w_dff, rw.crash_penalty, 0.0, task.cos_crash_tilt)
+    # the mass folds into the effort weights: the wrench's reward keeps its operations and bits
+    floats = (rw.alive_bonus, rw.w_xy, rw.w_z, rw.w_ff * task.ff_to_newton, rw.w_dff * task.ff_to_newton,
+              rw.crash_penalty, 0.0, task.cos_crash_tilt)
     if device is None:
         return _Operands(*floats, task.grace_steps)
     return _Operands(*(torch.tensor(v, dtype=torch.float32, device=device) for v in floats),

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import torch
 
-from ..config import SENSING, EnvConfig, with_sensing
+from ..config import RESIDUAL_TARGETS, SENSING, EnvConfig, ResidualConfig, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
 from ..keys import BASE_STATE_GROUPS, INPUT_GROUPS, PRIVILEGED_GROUPS, input_channels
 from ..quick import PPO_QUICK
@@ -128,6 +128,13 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--base-controller", default="pd", choices=("pd",) + CLASSICAL_CONTROLLERS,
                    help="the law the residual is added to (default: the paper's PD); a classical one "
                         "(regimes.CLASSICAL_CONTROLLERS) with the constants its validation search chose for the regime")
+    p.add_argument("--residual-on", default=ResidualConfig.acts_on, choices=list(RESIDUAL_TARGETS),
+                   help="where the residual acts (ResidualConfig.acts_on): wrench (the paper's: thrust and torques "
+                        "added to the base law's output) or acceleration (forward, left, up, in m/s^2, added to the "
+                        "base law's desired acceleration before its tilt limit, where the disturbance observer "
+                        "corrects; "
+                        "docs/rl.md, 'The residual on the outer loop'); recorded in the policy's env config; "
+                        f"default: {ResidualConfig.acts_on}")
     p.add_argument("--logger", default="csv", choices=["csv", "tensorboard"])
     p.add_argument("--no-progress", action="store_true")
     return p
@@ -168,6 +175,11 @@ def quick_setup(regime: str, spec: RLEnvSpec) -> tuple[RLEnvSpec, PPOConfig, lis
     return spec, cfg, changes
 
 
+def with_residual_on(config: EnvConfig, target: str) -> EnvConfig:
+    """``config`` with its residual acting on ``target`` (``ResidualConfig.acts_on``)."""
+    return replace(config, residual=replace(config.residual, acts_on=target))
+
+
 def with_reward_w_z(config: EnvConfig, w_z: float | None) -> EnvConfig:
     """``config`` with the reward's height weight ``w_z`` (None: unchanged, the regime's preset)."""
     return config if w_z is None else replace(config, reward=replace(config.reward, w_z=w_z))
@@ -196,6 +208,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
     try:
         config, base_wind = with_base_controller(
             regime, with_reward_w_z(with_sensing(regime_config(regime), args.sensing), args.reward_w_z), args.base_controller)
+        config = with_residual_on(config, args.residual_on).validate()
         spec = RLEnvSpec(regime=regime, wind_input=args.wind_input, device=args.device, seed=args.seed,
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
                          config=config, base_wind_input=base_wind, compile_step=not args.eager,
@@ -241,6 +254,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
           f"wind input: {spec.wind_input}; inputs zeroed: {', '.join(spec.zero_inputs) or 'none'}; base state read: "
           f"{', '.join(spec.base_state_inputs) or 'none'}; critic's privileged inputs: "
           f"{', '.join(spec.privileged_inputs) or 'none'}; memory: {spec.memory_frames} frame(s)"
+          f"; residual on the {spec.env_config.residual.acts_on}"
           f"{f', recurrent actor of {spec.recurrent_hidden} units' if spec.recurrent_hidden else ''}", flush=True)
 
     episodes = args.eval_episodes if args.eval_episodes is not None else (1 if args.quick else None)

@@ -63,8 +63,8 @@ from ..envs.ray_rows import RayRowsEnv
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
-from ..keys import (BASE_STATE_GROUPS, OBSERVATION_CHANNELS, OBSERVATION_KEY, PRIVILEGED_CHANNELS, PRIVILEGED_GROUPS,
-                    PRIVILEGED_KEY, RECURRENT_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS, named_channels)
+from ..keys import (BASE_STATE_GROUPS, OBSERVATION_KEY, PRIVILEGED_CHANNELS, PRIVILEGED_GROUPS, PRIVILEGED_KEY,
+                    RECURRENT_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS, named_channels, observation_channels)
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
 from ..transforms import (BaseWindInput, EpisodeControl, ObservationStack, PolicyObservation, PrivilegedObservation,
                           RunningObsNorm, WindEstimate, ZeroInputs)
@@ -188,8 +188,14 @@ class RLEnvSpec:
 
     @property
     def observation_channels(self) -> tuple[str, ...]:
-        """The channels of one frame of the policy's observation: the 23, then ``base_state_inputs``."""
-        return OBSERVATION_CHANNELS + self.base_state_inputs
+        """The channels of one frame of the policy's observation: the paper's 23 (22 with the residual
+        on the acceleration: :func:`~quadwind_trl.keys.observation_channels`), then ``base_state_inputs``."""
+        return self.policy_channels + self.base_state_inputs
+
+    @property
+    def policy_channels(self) -> tuple[str, ...]:
+        """The observation's channels before the base state's, for the residual this env's config has."""
+        return observation_channels(self.env_config.residual.acts_on)
 
     def _check_zero_inputs(self) -> None:
         value = self.zero_inputs
@@ -202,10 +208,11 @@ class RLEnvSpec:
             raise ValueError(f"RLEnvSpec.zero_inputs={value!r}: {wind} are the wind channels, which wind_input='zero' "
                              f"removes (the one way the ablation recognises a policy trained without them); "
                              f"allowed: channels of {ZEROABLE_CHANNELS}")
-        unknown = [name for name in value if name not in OBSERVATION_CHANNELS]
+        unknown = [name for name in value if name not in self.policy_channels]
         if unknown:
+            allowed = tuple(c for c in self.policy_channels if c not in WIND_CHANNELS)
             raise ValueError(f"RLEnvSpec.zero_inputs={value!r}: unknown channels {unknown}; allowed: channels of "
-                             f"{ZEROABLE_CHANNELS}")
+                             f"{allowed}")
         if len(set(value)) < len(value):
             twice = sorted({name for name in value if value.count(name) > 1})
             raise ValueError(f"RLEnvSpec.zero_inputs={value!r}: {twice} given twice; allowed: each channel once, of "
@@ -216,7 +223,7 @@ class RLEnvSpec:
         """Every channel the env forces to 0, in observation order: ``zero_inputs``, and the wind's
         for ``wind_input="zero"``."""
         zeroed = set(self.zero_inputs) | (set(WIND_CHANNELS) if self.wind_input == "zero" else set())
-        return tuple(name for name in OBSERVATION_CHANNELS if name in zeroed)
+        return tuple(name for name in self.policy_channels if name in zeroed)
 
     @property
     def env_config(self) -> EnvConfig:

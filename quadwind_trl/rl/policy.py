@@ -5,8 +5,9 @@ action mean (the initial deterministic policy is ~ the PD baseline), 1 on the va
 
 A policy file (``policy.pt``, or a training checkpoint, which adds the value network, optimiser,
 RNG and progress) is the dict :func:`policy_payload` makes; :func:`load_policy` reads either and
-rebuilds the actor the file's env spec describes (its base-state inputs and memory:
-:func:`network_dims`; files from before these settings: the paper's 23 inputs).
+rebuilds the actor the file's env spec describes (its residual's target, base-state inputs and
+memory: :func:`network_dims`; files from before these settings: the paper's 23 inputs and its
+residual on the wrench).
 """
 from __future__ import annotations
 
@@ -21,8 +22,8 @@ from torch import nn
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import GRUModule, ProbabilisticActor, TanhNormal, ValueOperator
 
-from ..config import config_to_dict
-from ..keys import OBSERVATION_CHANNELS, OBSERVATION_DIM, OBSERVATION_KEY, PRIVILEGED_KEY, RECURRENT_KEY
+from ..config import ResidualConfig, config_to_dict
+from ..keys import OBSERVATION_DIM, OBSERVATION_KEY, PRIVILEGED_KEY, RECURRENT_KEY, observation_channels
 from ..manifest import repo_relative
 from ..validation import load_checkpoint
 from .config import ACTIVATIONS, PPOConfig
@@ -82,15 +83,26 @@ def _with_inputs(mlp: nn.Sequential, extra: int, seed: int) -> nn.Sequential:
     return mlp
 
 
+def residual_target(env_spec: RLEnvSpec | Mapping) -> str:
+    """What the residual of an env spec (an :class:`RLEnvSpec` or a policy file's ``env_spec``)
+    acts on, ``ResidualConfig.acts_on``: files saved before the setting acted on the wrench."""
+    if isinstance(env_spec, RLEnvSpec):
+        return env_spec.env_config.residual.acts_on
+    return env_spec["env_config"]["residual"].get("acts_on", "wrench")
+
+
 def network_dims(env_spec: RLEnvSpec | Mapping) -> dict[str, int]:
-    """The networks' input widths for an env spec (an :class:`RLEnvSpec` or a policy file's
-    ``env_spec``; older files lack the learning levers' settings and get the paper's 23 inputs):
-    ``obs_dim`` = (23 + base-state channels) x memory frames, ``privileged_dim`` = the critic's
-    privileged channels; :func:`build_actor_critic` keywords."""
+    """The networks' widths for an env spec (an :class:`RLEnvSpec` or a policy file's
+    ``env_spec``; older files lack the learning levers' settings and get the paper's 23 inputs and
+    4 actions): ``obs_dim`` = (23, or 22 with the residual on the acceleration, + base-state
+    channels) x memory frames, ``privileged_dim`` = the critic's privileged channels,
+    ``action_dim`` = the residual's channels (4 on the wrench, 3 on the acceleration);
+    :func:`build_actor_critic` keywords."""
     get = (lambda name, default: getattr(env_spec, name)) if isinstance(env_spec, RLEnvSpec) else env_spec.get
-    per_frame = OBSERVATION_DIM + len(get("base_state_inputs", ()))
+    target = residual_target(env_spec)
+    per_frame = len(observation_channels(target)) + len(get("base_state_inputs", ()))
     return {"obs_dim": per_frame * int(get("memory_frames", 1)), "privileged_dim": len(get("privileged_inputs", ())),
-            "recurrent_hidden": int(get("recurrent_hidden", 0))}
+            "recurrent_hidden": int(get("recurrent_hidden", 0)), "action_dim": ResidualConfig(acts_on=target).channels}
 
 
 def check_recurrent(cfg: PPOConfig, spec: RLEnvSpec) -> None:
@@ -187,15 +199,16 @@ def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dic
     vecnorm_state=...)``; ``payload["ppo_config"]`` / ``payload["env_spec"]`` describe the run."""
     payload = load_checkpoint(path, "policy", device)
     saved = payload.get("observation_channels")
-    expected = list(OBSERVATION_CHANNELS) + list(payload["env_spec"].get("base_state_inputs", ()))
+    layout = observation_channels(residual_target(payload["env_spec"]))
+    expected = list(layout) + list(payload["env_spec"].get("base_state_inputs", ()))
     if saved is not None and list(saved) != expected:
         raise ValueError(f"{path} was trained on another observation layout ({len(saved)} channels: {saved}); "
-                         f"this version's is keys.OBSERVATION_CHANNELS ({OBSERVATION_DIM} channels) followed by the "
-                         f"policy's base_state_inputs: {expected}")
+                         f"this version's is keys.observation_channels ({len(layout)} channels for its residual) "
+                         f"followed by the policy's base_state_inputs: {expected}")
     cfg = payload["ppo_config"]
     cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
     # the actor reads no privileged input: the file's critic, if any, is not rebuilt here
     dims = network_dims(payload["env_spec"])
-    actor, _ = build_actor_critic(cfg, dims["obs_dim"], recurrent_hidden=dims["recurrent_hidden"])
+    actor, _ = build_actor_critic(cfg, dims["obs_dim"], dims["action_dim"], recurrent_hidden=dims["recurrent_hidden"])
     actor.load_state_dict(payload["policy"])
     return actor.to(device).eval(), payload

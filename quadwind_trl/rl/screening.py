@@ -57,6 +57,9 @@ def _levers(regime: str) -> dict[str, tuple[str, ...]]:
         # the residual reads the true mean wind instead of the estimate: the privileged upper bound
         # of what wind information adds (the base law is unchanged)
         "oracle_wind": ("--wind-input", "truth"),
+        # the residual corrects the base law's desired acceleration (where the observer corrects),
+        # not its wrench: the policy need not learn the attitude loop
+        "accel_residual": ("--residual-on", "acceleration"),
     }
 
 

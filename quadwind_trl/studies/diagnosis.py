@@ -37,19 +37,29 @@ from ..config import EnvConfig
 from ..envs.rotations import quat_to_rotmat
 from ..envs.runner import FlightResults, NestedKey, scored_samples
 from ..envs.vehicle import VehicleParams
-from ..evaluation.ablation import TRACE_KEYS, fly_controllers
+from ..evaluation.ablation import TRACE_KEYS, fly_controllers, policy_env_config
 from ..evaluation.figures import COLORS, LABELS, plt, save_figure
-from ..keys import MEAN_WIND_KEY, MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_KEY, WIND_KEY
+from ..keys import MEAN_WIND_KEY, MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_KEY, RESIDUAL_ENTRY, WIND_KEY
 from ..rl.envs import find_transform, make_env, policy_env_settings, vecnorm
+from ..rl.policy import load_policy
 from ..transforms import PolicyObservation, ZeroInputs
 
 #: the 10 Hz record a diagnosis needs: the ablation's trace, every input of the policy
 #: observation (so that it can be recomputed before normalisation), the policy's normalised and
-#: clipped input itself, the PD and total commands and the attitude
+#: clipped input itself, the PD and total commands and the attitude (of a residual on the wrench:
+#: :func:`diagnosis_log_keys` names the residual's entry of another)
 DIAGNOSIS_LOG_KEYS: tuple[NestedKey, ...] = TRACE_KEYS + (
     MEAS_KEY, "ref_yaw", "pos_error", "pd_wrench", "ff_wrench", "cmd_wrench", "tilt_cmd", "tilt_saturated",
     ("truth", "quat"), WIND_KEY, OBSERVATION_KEY,
 )
+
+
+def diagnosis_log_keys(config: EnvConfig) -> tuple[NestedKey, ...]:
+    """:data:`DIAGNOSIS_LOG_KEYS` for a policy of ``config``: its residual's entry (``ff_wrench`` or ``ff_acc``)."""
+    ff = RESIDUAL_ENTRY["wrench"]
+    return tuple(RESIDUAL_ENTRY[config.residual.acts_on] if key == ff else key for key in DIAGNOSIS_LOG_KEYS)
+
+
 #: |normalised observation| beyond which an input is outside what training showed the policy
 #: (running mean and std over all training rollouts: a Gaussian channel passes 5 sigma once in
 #: ~3.5 million samples, about two training runs of steps)
@@ -108,7 +118,7 @@ def step_diagnostics(res: FlightResults, scenarios: TensorDictBase, payload: dic
         tilt=torch.acos(up) / limits.max_tilt_rad,
         tilt_saturated=flat["tilt_saturated"].squeeze(-1),
         thrust=flat["cmd_wrench"][..., 0] / limits.thrust_max_n,
-        ff=flat["ff_wrench"] / torch.tensor(config.residual.action_scale),
+        ff=flat[RESIDUAL_ENTRY[config.residual.acts_on]] / torch.tensor(config.residual.scale),
         obs_z=normalised,
         clipped_ok=(normalised.clamp(-limits.obs_clip, limits.obs_clip) - flat[OBSERVATION_KEY]).abs().amax(-1)
         if limits.obs_clip is not None else (normalised - flat[OBSERVATION_KEY]).abs().amax(-1),
@@ -121,7 +131,7 @@ def step_diagnostics(res: FlightResults, scenarios: TensorDictBase, payload: dic
         with torch.no_grad():
             out["action"] = actor(flat.select(OBSERVATION_KEY).clone())["action"]
     else:
-        out["action"] = torch.zeros(n * t, 4)
+        out["action"] = torch.zeros(n * t, config.residual.channels)
     out = out.reshape(n, t)
     pattern_start, _ = env.base_env.sim.trajectories.schedule(scenarios["traj_id"], scenarios["altitude_m"])
     out["scored"] = scored_samples(log, pattern_start)
@@ -141,7 +151,7 @@ def fly_recorded_layout(recorded: dict, policy_path, estimator, controllers: Seq
     sweep = recorded["sweep"]
     return fly_controllers(SWEEP_REGIME[sweep], SWEEPS[sweep].scenarios(), policy_path, estimator, tuple(controllers),
                            batch=recorded["batch"], progress=progress, compile_step=recorded["compile_step"],
-                           log_keys=DIAGNOSIS_LOG_KEYS)
+                           log_keys=diagnosis_log_keys(policy_env_config(load_policy(policy_path)[1])))
 
 
 def _scored_mean(x: Tensor, scored: Tensor) -> Tensor:

@@ -26,6 +26,11 @@ index    name                    source
                                  action scale (10 N, 5, 5, 5 N m): dimensionless, in [-1, 1]
 =======  ======================  ================================================================
 
+With the residual on the acceleration (``ResidualConfig.acts_on="acceleration"``) the last block
+is three channels, ``ff_acc_fwd, ff_acc_left, ff_acc_U``: the applied correction to the desired
+acceleration divided by its scale (3, 3, 1.5 m/s^2), in the reference heading's frame in which it
+is applied (22 channels; :func:`~quadwind_trl.keys.observation_channels`).
+
 Channels 0-12 are computed by the estimator feature extractor's own code (the first 13 channels of
 :class:`~quadwind_trl.estimator.features.FeatureExtractor`, evaluated at every control step), so the
 policy and the estimator see identical definitions. Everything comes from the sensors, the
@@ -56,8 +61,8 @@ from torchrl.envs import Transform
 from ..config import GRAVITY_M_S2, EnvConfig
 from ..envs.controller import make_base_controller
 from ..estimator.features import FeatureExtractor
-from ..keys import (BASE_STATE_GROUPS, BASE_STATE_KEY, MEAS_KEY, OBSERVATION_DIM, OBSERVATION_KEY,
-                    PRIVILEGED_CHANNELS, PRIVILEGED_KEY, WIND_KEY, observation_index)
+from ..keys import (BASE_STATE_GROUPS, BASE_STATE_KEY, MEAS_KEY, OBSERVATION_KEY, PRIVILEGED_CHANNELS, PRIVILEGED_KEY,
+                    RESIDUAL_ENTRY, WIND_KEY, observation_channels, observation_index)
 
 #: base-state group -> the entries of the base law's state (``env.base``) it is computed from (any of them)
 BASE_STATE_SOURCES: dict[str, tuple[str, ...]] = {
@@ -93,20 +98,23 @@ def _heading_vector(vec: torch.Tensor, yaw: torch.Tensor) -> dict[str, torch.Ten
 
 
 class PolicyObservation(Transform):
-    """Concatenates the 23 policy inputs into ``out_key`` (default ``"observation"``), and after
-    them the base controller's state channels ``base_channels`` (names of
-    :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS`, read from the env's ``base`` entry; default
-    none: the paper's 23).
+    """Concatenates the 23 policy inputs (22 with the residual on the acceleration) into
+    ``out_key`` (default ``"observation"``), and after them the base controller's state channels
+    ``base_channels`` (names of :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS`, read from the
+    env's ``base`` entry; default none: the paper's 23).
 
-    Reads ``meas``, ``ref_pos``, ``ref_yaw``, ``pos_error``, ``pd_wrench``, ``ff_wrench`` and
-    ``wind_key`` (``"wind_hat"``, written by :class:`~quadwind_trl.transforms.wind.WindEstimate`);
-    leaves them in place. Stateless.
+    Reads ``meas``, ``ref_pos``, ``ref_yaw``, ``pos_error``, ``pd_wrench``, the applied residual
+    (``ff_wrench``, or ``ff_acc`` on the acceleration: ``keys.RESIDUAL_ENTRY``) and ``wind_key``
+    (``"wind_hat"``, written by :class:`~quadwind_trl.transforms.wind.WindEstimate`); leaves them
+    in place. Stateless.
     """
 
     def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = OBSERVATION_KEY,
                  base_channels: Sequence[str] = ()):
         cfg = config or EnvConfig()
-        in_keys = [MEAS_KEY, "ref_pos", "ref_yaw", "pos_error", "pd_wrench", "ff_wrench", wind_key]
+        self.ff_key = RESIDUAL_ENTRY[cfg.residual.acts_on]
+        self.dim = len(observation_channels(cfg.residual.acts_on))
+        in_keys = [MEAS_KEY, "ref_pos", "ref_yaw", "pos_error", "pd_wrench", self.ff_key, wind_key]
         self.base_channels = tuple(base_channels)
         if self.base_channels:
             have = base_state_channels(cfg)
@@ -123,13 +131,14 @@ class PolicyObservation(Transform):
         # its 13 first channels are the shared kinematic channels)
         self._kin = FeatureExtractor("vertical", mass_kg=cfg.vehicle.mass_kg, log_dt_s=cfg.timing.log_dt_s)
         self.weight_n = cfg.vehicle.mass_kg * GRAVITY_M_S2
-        self.register_buffer("action_scale", torch.tensor(cfg.residual.action_scale, dtype=torch.float32), persistent=False)
+        # the applied residual in units of its action scale: the action's own units
+        self.register_buffer("action_scale", torch.tensor(cfg.residual.scale, dtype=torch.float32), persistent=False)
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
         record = {k: next_tensordict.get(k) for k in self._kin.raw_keys}
         ref_yaw = record["ref_yaw"]
         _, feats = self._kin.step(self._kin.init_state(ref_yaw.shape[0], ref_yaw.device), record)
-        ff = next_tensordict.get("ff_wrench") / self.action_scale.to(ref_yaw.device)
+        ff = next_tensordict.get(self.ff_key) / self.action_scale.to(ref_yaw.device)
         _, _, yaw = next_tensordict.get((MEAS_KEY, "attitude")).unbind(-1)  # (roll, pitch, yaw): the measured yaw
         vel_f, vel_l = to_heading_frame(feats[..., 1], feats[..., 2], yaw)
         wind = next_tensordict.get(self.wind_key)  # (north, east)
@@ -168,7 +177,9 @@ class PolicyObservation(Transform):
         vel_hat = state.get("vel_hat", None)
         if vel_hat is not None:
             parts.update({f"base_vel_err_{k}": v for k, v in _heading_vector(vel_hat - td.get("nav_vel"), yaw).items()})
-        # what the outer loop adds to its desired acceleration (envs.controller.CascadeController)
+        # what the base's additions put into the outer loop's desired acceleration
+        # (envs.controller.CascadeController); a residual on the acceleration is not among them: its
+        # own channels show it
         ff = None if integral is None else -self.ki.to(yaw.device) * integral
         if force is not None:
             ff = -force / self.mass_kg if ff is None else ff - force / self.mass_kg
@@ -184,7 +195,7 @@ class PolicyObservation(Transform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         observation_spec[self.out_key] = Unbounded(
-            shape=(*observation_spec.shape, OBSERVATION_DIM + len(self.base_channels)), device=observation_spec.device
+            shape=(*observation_spec.shape, self.dim + len(self.base_channels)), device=observation_spec.device
         )
         return observation_spec
 
