@@ -18,7 +18,7 @@ from quadwind_trl.regimes import REWARD_W_Z, regime_config
 from quadwind_trl.rl.envs import DEFAULT_RANGES, RLEnvSpec, make_env, vecnorm
 from quadwind_trl.rl.config import Curriculum, PPOConfig, vertical_curriculum
 from quadwind_trl.rl.paired import validation_scenarios
-from quadwind_trl.rl.policy import build_actor_critic, load_policy
+from quadwind_trl.rl.policy import action_scale, build_actor_critic, load_policy
 from quadwind_trl.rl.trainer import PPOTrainer, ResumeMismatch
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -179,6 +179,19 @@ def test_the_recipes_evaluate_in_the_background_except_at_quick_scale():
     assert not recipe_ppo_config("horizontal", parser.parse_args(["--quick"]), quick).background_eval
     assert recipe_ppo_config("horizontal", parser.parse_args(["--quick", "--background-eval"]), quick).background_eval
     assert not PPOConfig().background_eval  # the library's default: no process a script without a __main__ guard would re-run
+
+
+def test_the_recipes_exploration_scale_is_a_flag_checked_before_anything_is_built():
+    from quadwind_trl.rl.cli import build_parser, recipe_ppo_config
+
+    parser = build_parser("horizontal", "")
+    assert recipe_ppo_config("horizontal", parser.parse_args([])).init_scale == PPOConfig.init_scale
+    cfg = recipe_ppo_config("horizontal", parser.parse_args(["--init-scale", "0.2"]))
+    assert cfg.init_scale == 0.2
+    assert action_scale(build_actor_critic(cfg)[0]) == pytest.approx(0.2)  # the policy trains from it
+    for bad in ("0", "-0.1", "inf", "nan"):
+        with pytest.raises(ValueError, match="PPOConfig.init_scale"):
+            recipe_ppo_config("horizontal", parser.parse_args(["--init-scale", bad]))
 
 
 def test_a_failed_background_evaluation_stops_the_run_with_its_error(tmp_path):

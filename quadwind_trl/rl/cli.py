@@ -59,6 +59,9 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
     p.add_argument("--value-norm", action="store_true", default=None,
                    help="the critic learns its targets standardised by their running mean and std, rescaled to returns "
                         "for GAE (PopArt-style; default: off, the paper's critic on the return scale)")
+    p.add_argument("--init-scale", type=float, default=None, metavar="STD",
+                   help=f"the policy's initial exploration scale, the state-independent std of the pre-tanh Normal "
+                        f"(default {PPOConfig.init_scale:g}; it is learned, but moves little over a run: docs/rl.md)")
     p.add_argument("--reward-w-z", type=reward_weight, default=None, metavar="BETA",
                    help=f"the reward's height-error weight beta (default the regime's: {REWARD_W_Z[regime]:g}; the paper's: "
                         f"{PAPER_REWARD_W_Z[regime]:g}; regimes.REWARD_W_Z says why they differ); recorded in the "
@@ -192,7 +195,7 @@ def recipe_ppo_config(regime: str, args: argparse.Namespace, base: PPOConfig | N
     overrides = {"seed": args.seed, "threads": args.threads}
     for arg, name in (("total_frames", "total_frames"), ("num_envs", "num_envs"), ("steps_per_env", "steps_per_env"),
                       ("eval_every", "eval_every_frames"), ("lr_schedule", "lr_schedule"),
-                      ("reward_scaling", "reward_scaling"), ("value_norm", "value_norm"),
+                      ("reward_scaling", "reward_scaling"), ("value_norm", "value_norm"), ("init_scale", "init_scale"),
                       ("collect_workers", "collect_workers"),
                       ("collector", "collector"), ("num_collectors", "num_collectors"), ("address", "ray_address"),
                       ("background_eval", "background_eval")):

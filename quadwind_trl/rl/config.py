@@ -141,8 +141,8 @@ class PPOConfig:
             raise ValueError(f"PPOConfig.value_norm={self.value_norm!r}; allowed: True or False")
         if not 0 < self.lr:
             raise ValueError(f"PPOConfig.lr={self.lr} must be > 0")
-        if not 0 < self.init_scale:
-            raise ValueError(f"PPOConfig.init_scale={self.init_scale} must be > 0")
+        if not 0 < self.init_scale < math.inf:
+            raise ValueError(f"PPOConfig.init_scale={self.init_scale}; allowed: finite, > 0")
         return self
 
     def _validate_collector(self) -> None:
