@@ -5,7 +5,8 @@
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
     python recipes/reproduce.py --full --only ppo-horizontal-seed1 ppo-vertical-seed1
 
-Each stage is one of the recipes in this folder, run as its own single-threaded process; up to
+Each stage is one of the recipes in this folder, run as its own single-threaded process (forked
+from a server that has imported torch, TorchRL and the library once); up to
 ``--jobs`` (default 2) run at once, each as soon as the stages whose outputs it reads have finished
 (the horizontal and the vertical chains side by side; each line of output is prefixed with its
 stage's name). A stage whose output already exists is skipped (``--force STAGE`` reruns it), and

@@ -103,8 +103,9 @@ def run_stages_locally(selected: Sequence[Stage], plan: Sequence[Stage], force: 
     """Run ``selected`` (in ``plan``'s order), up to ``jobs`` at once, each once the stages it
     needs have finished or are not selected; a stage whose output exists is skipped unless forced.
     ``command`` gives a stage's recipe and arguments, run in ``cwd`` (a process forked from the
-    stage server, :data:`PRELOADED` imported). On a failure
-    no new stage starts, the running ones finish, and the command exits 1."""
+    stage server, :data:`PRELOADED` imported). On a failure no new stage starts, the running ones
+    finish, and the command exits 1. As with any multiprocessing program, a script that calls this
+    runs it under ``if __name__ == "__main__":`` (each stage's process imports the script first)."""
     if jobs < 1:
         raise ValueError(f"jobs={jobs}: run at least 1 stage at a time")
     names = {s.name for s in selected}
