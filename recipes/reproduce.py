@@ -44,7 +44,6 @@ from quadwind_trl.manifest import repo_relative
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.pipeline import Stage, is_forced, longest_chain
 from quadwind_trl.pipeline.run import add_executor_arguments, check_executor_arguments, run_plan
-from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
@@ -78,6 +77,10 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
                   q / "results.md", rerun=True),
         ]
         return out
+    # only the full plan names the classical controllers: a toy run's driving process then imports
+    # no torch (3 s of CPU, while the stage server and the first flight import it beside)
+    from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
+
     data = {r: ROOT / "data" / f"flights_{r}" for r in REGIMES}
     unseen = {r: ROOT / "data" / f"flights_{r}_unseen" for r in data}
     unseen_seed = {"horizontal": "1002", "vertical": "2002"}
