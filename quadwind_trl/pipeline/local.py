@@ -1,7 +1,7 @@
 """The pipeline's own executor: each stage a process of this machine, up to ``jobs`` at once.
 
-Every stage's recipe starts by importing torch, TensorDict, TorchRL and the library: about 3.5 s
-of CPU on a 2-core machine, a third of a toy stage's work. So the stages are not started as new
+Every stage's recipe starts by importing torch, TensorDict, TorchRL, SciPy and the library: about
+3.5 s of CPU per process, a third of a toy stage's work (docs/benchmarks.md, "Newcomer commands"). So the stages are not started as new
 interpreters but forked from one server process (multiprocessing's ``forkserver``) that has
 imported :data:`PRELOADED` once; each stage is still its own process, with its own output, exit
 status, working folder and environment, and runs its recipe as ``python recipe.py ARGS`` would.
