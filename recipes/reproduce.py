@@ -1,7 +1,7 @@
 """Every stage of the paper, end to end: datasets -> estimators -> PPO policies -> PD baseline
 -> paired ablation -> classical controllers and error budget (full runs only) -> report.
 
-    python recipes/reproduce.py --quick     # toy scale, about 4 minutes on 2 idle cores (scripts/quickstart.sh)
+    python recipes/reproduce.py --quick     # toy scale, about 2 minutes on 2 cores (scripts/quickstart.sh)
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
     python recipes/reproduce.py --full --only ppo-horizontal-seed1 ppo-vertical-seed1
 
