@@ -1,11 +1,12 @@
 """Every stage of the paper, end to end: datasets -> estimators -> PPO policies -> PD baseline
 -> paired ablation -> classical controllers and error budget (full runs only) -> report.
 
-    python recipes/reproduce.py --quick     # toy scale, about 4 minutes on 2 idle cores (scripts/quickstart.sh)
+    python recipes/reproduce.py --quick     # toy scale, about 2 minutes on 2 cores (scripts/quickstart.sh)
     python recipes/reproduce.py --full      # paper scale: hours; resumable, stage by stage
     python recipes/reproduce.py --full --only ppo-horizontal-seed1 ppo-vertical-seed1
 
-Each stage is one of the recipes in this folder, run as its own single-threaded process; up to
+Each stage is one of the recipes in this folder, run as its own single-threaded process (forked
+from a server that has imported torch, TorchRL and the library once); up to
 ``--jobs`` (default 2) run at once, each as soon as the stages whose outputs it reads have finished
 (the horizontal and the vertical chains side by side; each line of output is prefixed with its
 stage's name). A stage whose output already exists is skipped (``--force STAGE`` reruns it), and
@@ -43,7 +44,6 @@ from quadwind_trl.manifest import repo_relative
 from quadwind_trl.outputs import hold_for_command
 from quadwind_trl.pipeline import Stage, is_forced, longest_chain
 from quadwind_trl.pipeline.run import add_executor_arguments, check_executor_arguments, run_plan
-from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
 
 ROOT = Path(__file__).resolve().parent.parent
 CHECKPOINTS = ROOT / "quadwind_trl" / "checkpoints"
@@ -77,6 +77,10 @@ def stages(quick: bool, quick_dir: Path = ROOT / "runs" / "quick") -> list[Stage
                   q / "results.md", rerun=True),
         ]
         return out
+    # only the full plan names the classical controllers: a toy run's driving process then imports
+    # no torch (3 s of CPU, while the stage server and the first flight import it beside)
+    from quadwind_trl.regimes import CLASSICAL_CONTROLLERS
+
     data = {r: ROOT / "data" / f"flights_{r}" for r in REGIMES}
     unseen = {r: ROOT / "data" / f"flights_{r}_unseen" for r in data}
     unseen_seed = {"horizontal": "1002", "vertical": "2002"}

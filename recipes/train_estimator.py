@@ -41,7 +41,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--regime", required=True, choices=["horizontal", "vertical"])
     p.add_argument("--data", required=True, help="dataset directory (recipes/generate_flights.py)")
-    p.add_argument("--quick", action="store_true", help="small smoke run (8 short epochs at batch 64)")
+    p.add_argument("--quick", action="store_true", help="small smoke run (4 short epochs at batch 64)")
     p.add_argument("--out", default=None, help="checkpoint path (.pt); the manifest goes beside it (.json)")
     p.add_argument("--epochs", type=int, default=None, help="max epochs (default: horizontal 25, vertical 150)")
     p.add_argument("--windows-per-epoch", type=int, default=None, help="balanced-sampler draws per epoch (default: horizontal 80000, vertical 40000; 0 = the split's window count)")

@@ -254,6 +254,49 @@ def test_a_failed_stage_starts_nothing_more_and_the_command_fails(tmp_path, monk
     assert "[fail] failed (exit status 3)" in capsys.readouterr().out
 
 
+_PROBE = """import atexit, json, os, sys
+out = sys.argv[1]
+seen = {"argv": sys.argv, "cwd": os.getcwd(), "variable": os.environ.get("QUADWIND_PROBE"), "name": __name__,
+        "modules": sorted(sys.modules)}
+atexit.register(lambda: open(out, "w").write(json.dumps(seen)))  # written at exit, as a lock is released
+print("to stdout")
+print("to stderr", file=sys.stderr)
+if len(sys.argv) > 2:
+    raise RuntimeError(sys.argv[2])
+"""
+
+
+def test_a_stage_runs_its_recipe_as_a_new_process_would_with_the_libraries_imported(tmp_path, monkeypatch, capsys):
+    """A stage's process is forked from the stage server: its recipe starts with the libraries
+    imported (``PRELOADED``) and otherwise runs as ``python recipe.py ARGS`` would: its arguments,
+    the pipeline's folder, this process's environment as it is now, ``__main__``, both output
+    streams relayed; its exit handlers run, and an exception fails the stage with its traceback."""
+    from quadwind_trl.pipeline.local import PRELOADED
+
+    reproduce = _load_reproduce(monkeypatch)
+    (tmp_path / "recipes").mkdir()
+    (tmp_path / "recipes" / "probe.py").write_text(_PROBE)
+    monkeypatch.setattr(reproduce, "ROOT", tmp_path)
+    monkeypatch.delenv("QUADWIND_PROBE", raising=False)
+    first = [reproduce.Stage("first", ("probe.py", str(tmp_path / "first.json")), tmp_path / "first.json")]
+    _run_locally(reproduce, first, first, [], 1, tmp_path / "pipeline_times.json")  # the server runs from here on
+    assert json.loads((tmp_path / "first.json").read_text())["variable"] is None
+    monkeypatch.setenv("QUADWIND_PROBE", "set after the server started")
+    plan = [reproduce.Stage("ok", ("probe.py", str(tmp_path / "ok.json")), tmp_path / "ok.json", needs=()),
+            reproduce.Stage("raises", ("probe.py", str(tmp_path / "raises.json"), "boom"), tmp_path / "never", needs=("ok",))]
+    with pytest.raises(SystemExit, match="stage raises failed"):
+        _run_locally(reproduce, plan, plan, [], 1, tmp_path / "pipeline_times.json")
+    seen = json.loads((tmp_path / "ok.json").read_text())
+    assert seen["argv"] == [str(tmp_path / "recipes" / "probe.py"), str(tmp_path / "ok.json")]
+    assert seen["cwd"] == str(tmp_path) and seen["name"] == "__main__"
+    assert seen["variable"] == "set after the server started"
+    assert set(PRELOADED) <= set(seen["modules"])
+    assert (tmp_path / "raises.json").exists()  # its exit handlers ran after the exception
+    out = capsys.readouterr().out
+    assert "[ok] to stdout" in out and "[ok] to stderr" in out and "[ok] finished" in out
+    assert "[raises] RuntimeError: boom" in out and "[raises] failed (exit status 1)" in out
+
+
 def test_the_command_runs_the_stages_it_selects_on_this_machine(tmp_path, monkeypatch, capsys):
     """``reproduce.py --only``, through its ``main`` and the local executor: the selected stage
     runs (its unselected needs do not), and its time is added to the record."""

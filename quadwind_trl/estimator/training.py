@@ -137,10 +137,11 @@ def full_config(regime: str, **overrides) -> TrainConfig:
 
 
 def quick_config(regime: str, **overrides) -> TrainConfig:
-    """A small run for smoke tests: a few short epochs at batch 64, dense validation."""
+    """A small run for smoke tests: a few short epochs at batch 64, dense validation (4 epochs:
+    the toy pipeline shows that training runs, not what it reaches)."""
     base = full_config(regime)
     cfg = replace(
-        base, epochs=8, windows_per_epoch=1024, batch_size=64, warmup_epochs=0.5, val_stride=None, patience=None
+        base, epochs=4, windows_per_epoch=1024, batch_size=64, warmup_epochs=0.5, val_stride=None, patience=None
     )
     return replace(cfg, **overrides)
 
