@@ -504,6 +504,25 @@ def test_screen_plan_refuses_more_validation_episodes_than_the_sweep_has_before_
         ScreenPlan(val_episodes=n + 1)
 
 
+def test_a_screen_row_names_the_commit_its_run_started_from(tmp_path, monkeypatch):
+    from quadwind_trl.rl import screening
+
+    tree = {"commit": "started-at"}
+
+    def train(*args, **kwargs):  # someone commits while the run trains
+        tree["commit"] = "committed-while-training"
+        return {"frames": 8, "wall_time_s": 1.0}
+
+    monkeypatch.setattr(screening, "git_commit", lambda: tree["commit"])
+    monkeypatch.setattr(screening, "run", train)
+    axis = {"gain_pct": 1.0, "ci_low_pct": 0.0, "ci_high_pct": 2.0}
+    monkeypatch.setattr(screening, "score_on_validation", lambda policy, plan: {"xy": axis, "z": axis, "eval_s": 1.0})
+    plan = screening.ScreenPlan(seeds=(0,), frames=8, out=tmp_path / "out", runs=tmp_path / "runs")
+    (row,) = screening.screen(plan, log=lambda line: None)
+    assert row.git_commit == "started-at"
+    assert json.loads(plan.row_path("residual", 0).read_text())["git_commit"] == "started-at"
+
+
 def test_a_screen_row_says_when_one_episode_decides_the_mean_gain():
     from quadwind_trl.rl.screening import ScreenRow, _gain, table
 

@@ -227,13 +227,16 @@ def screen(plan: ScreenPlan, log=print) -> list[ScreenRow]:
             argv = plan.recipe_args(name, flags, seed)
             log(f"[{name} seed {seed}] training: {' '.join(shlex.quote(a) for a in argv)}")
             parser = build_parser(plan.regime, "screen run")
+            # the code this run imports and trains: taken now, since the tree may be committed to
+            # (or edited) while a run of many minutes trains, and the row must name what flew
+            commit = git_commit()
             manifest = run(plan.regime, parser.parse_args(argv), curriculum=plan.regime == "vertical")
             policy = plan.run_dir(name, seed) / "policy.pt"
             validation = score_on_validation(policy, plan)
             row = ScreenRow(lever=name, flags=list(flags), seed=seed, regime=plan.regime, base=plan.base,
                             frames=manifest["frames"], validation=validation, train_wall_s=manifest["wall_time_s"],
                             wall_s=round(manifest["wall_time_s"] + validation["eval_s"], 1), policy=repo_relative(policy),
-                            git_commit=git_commit(), extra_flags=list(plan.extra_flags), val_episodes=plan.val_episodes,
+                            git_commit=commit, extra_flags=list(plan.extra_flags), val_episodes=plan.val_episodes,
                             recipe_args=argv)
             write_json(path, asdict(row))
             log(f"[{name} seed {seed}] validation xy {validation['xy']['gain_pct']:+.1f} % "
