@@ -114,8 +114,8 @@ def main() -> None:
             "rules": {"worst_xy": "largest wind-aware xy RMSE", "worst_excess_xy": "largest wind-aware minus PD xy RMSE",
                       "worst_z": "largest wind-aware z RMSE", "median_xy": "around the median wind-aware xy RMSE"},
             "selection": ranks,
-            "groups": {"worst_xy": group_summary(indicators, worst), "median_xy": group_summary(indicators, median),
-                       "all": group_summary(indicators, range(table.batch_size[0]))},
+            "groups": {rule: group_summary(indicators, rows, config.residual.acts_on)
+                       for rule, rows in (("worst_xy", worst), ("median_xy", median), ("all", range(table.batch_size[0])))},
             "episodes": {"worst_xy": [episode_row(scenarios, table, indicators, r) for r in worst],
                          "worst_excess_xy": [episode_row(scenarios, table, indicators, r) for r in ranks["worst_excess_xy"]],
                          "worst_z": [episode_row(scenarios, table, indicators, r) for r in ranks["worst_z"]]},

@@ -114,3 +114,24 @@ def test_a_section_whose_files_are_missing_is_left_out(tmp_path):
     # a study's section sits where the page's order puts it
     mine = Section("mine", "Mine", ("results/mine.json",), lambda ctx: "## Mine\n\ntext\n")
     assert render_page("# Results", (PAGE[0], mine, PAGE[-1]), empty) == "# Results\n\n## Mine\n\ntext\n\n"
+
+
+@pytest.mark.parametrize("residual_on, components", [("wrench", ("T", "x", "y", "z")),
+                                                     ("acceleration", ("fwd", "left", "U"))])
+def test_the_tail_diagnosis_names_channels_and_action_components_in_the_policys_layout(residual_on, components):
+    import torch
+    from tensordict import TensorDict
+
+    from quadwind_trl.keys import observation_channels
+    from quadwind_trl.studies.diagnosis import SCALAR_INDICATORS, group_summary
+
+    channels = observation_channels(residual_on)
+    episodes = 3
+    scalars = {k: torch.zeros(episodes) for k in SCALAR_INDICATORS}
+    out_of_range = torch.zeros(episodes, len(channels))
+    out_of_range[:, -1] = 0.5  # only the last channel, the residual's own last component, leaves its range
+    action = torch.arange(1.0, len(components) + 1).expand(episodes, -1)
+    aware = TensorDict({**scalars, "obs_out_of_range_by_channel": out_of_range, "action_mean_abs": action}, [episodes])
+    summary = group_summary({"pd": TensorDict(scalars, [episodes]), "aware": aware}, range(episodes), residual_on)
+    assert summary["aware"]["channels_out_of_range"] == {channels[-1]: 0.5}
+    assert summary["aware"]["action_mean_abs"] == dict(zip(components, range(1, len(components) + 1)))

@@ -39,7 +39,8 @@ from ..envs.runner import FlightResults, NestedKey, scored_samples
 from ..envs.vehicle import VehicleParams
 from ..evaluation.ablation import TRACE_KEYS, fly_controllers, policy_env_config
 from ..evaluation.figures import COLORS, LABELS, plt, save_figure
-from ..keys import MEAN_WIND_KEY, MEAS_KEY, OBSERVATION_CHANNELS, OBSERVATION_KEY, RESIDUAL_ENTRY, WIND_KEY
+from ..keys import (MEAN_WIND_KEY, MEAS_KEY, OBSERVATION_KEY, RESIDUAL_CHANNELS, RESIDUAL_ENTRY, WIND_KEY,
+                    observation_channels)
 from ..rl.envs import find_transform, make_env, policy_env_settings, vecnorm
 from ..rl.policy import load_policy
 from ..transforms import PolicyObservation, ZeroInputs
@@ -223,16 +224,20 @@ SCALAR_INDICATORS = ("tilt_cmd_saturated", "tilt_beyond_limit", "thrust_saturate
                      "obs_max_z", "action_saturated", "wind_estimate_error", "wind_true", "err_xy_max", "height_loss_max")
 
 
-def group_summary(indicators: dict[str, TensorDictBase], rows: Sequence[int]) -> dict:
+def group_summary(indicators: dict[str, TensorDictBase], rows: Sequence[int], residual_on: str = "wrench") -> dict:
     """Mean of every scalar indicator per controller over ``rows``, and the observation channels
-    most often out of range (wind-aware flights)."""
+    most often out of range (wind-aware flights), named in the layout of a residual on
+    ``residual_on`` (``ResidualConfig.acts_on``), as are the action's components."""
+    channels = observation_channels(residual_on)
+    # the action's components are the observation's own-correction channels without their prefix
+    components = tuple(c.removeprefix("ff_acc_").removeprefix("ff_") for c in RESIDUAL_CHANNELS[residual_on])
     idx = torch.tensor(list(rows))
     out = {name: {k: ind[k][idx].double().mean().item() for k in SCALAR_INDICATORS} for name, ind in indicators.items()}
     by_channel = indicators["aware"]["obs_out_of_range_by_channel"][idx].double().mean(0)
     top = torch.argsort(by_channel, descending=True)[:5]
-    out["aware"]["channels_out_of_range"] = {OBSERVATION_CHANNELS[i]: by_channel[i].item() for i in top.tolist() if by_channel[i] > 0}
+    out["aware"]["channels_out_of_range"] = {channels[i]: by_channel[i].item() for i in top.tolist() if by_channel[i] > 0}
     mean_abs = indicators["aware"]["action_mean_abs"][idx].double().mean(0)
-    out["aware"]["action_mean_abs"] = dict(zip(("T", "x", "y", "z"), mean_abs.tolist()))
+    out["aware"]["action_mean_abs"] = dict(zip(components, mean_abs.tolist(), strict=True))
     return out
 
 
