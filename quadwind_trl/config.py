@@ -82,6 +82,7 @@ class VehicleConfig:
 
 
 DISTURBANCE_MODELS = ("none", "wind_model", "observer", "l1")  # ControllerConfig.disturbance
+OBSERVER_READS = ("accelerometer", "true_specific_force")  # ControllerConfig.observer_reads
 
 
 @dataclass(frozen=True)
@@ -112,9 +113,14 @@ class ControllerConfig:
     # airframe's drag from a wind estimate (the env's input ``keys.BASE_WIND_KEY``) and its own
     # velocity; "observer" estimates the force from the accelerometer and the applied thrust;
     # "l1" is L1 adaptive control's estimate, from a velocity predictor's error (no accelerometer).
-    # Both estimates are low-pass filtered with time constant observer_tau_s.
+    # Both estimates are low-pass filtered with time constant observer_tau_s (0: unfiltered).
     disturbance: Literal["none", "wind_model", "observer", "l1"] = "none"
     observer_tau_s: float = 0.3
+    # What the observer's force is computed from: "accelerometer", the reading the law flies on;
+    # or "true_specific_force", a perfect accelerometer (no noise, bias or sample-and-hold). The
+    # second is an idealisation for measuring how much better cancellation could do
+    # (studies/observer_bound.py), not a law a vehicle can fly.
+    observer_reads: Literal["accelerometer", "true_specific_force"] = "accelerometer"
     # L1's state predictor: the rate (1/s) at which its velocity error decays, A_s = -l1_pole_1_s I
     # (5 1/s: the translational A_s of a public Crazyflie firmware port of L1Quad, Wu et al.,
     # IEEE T-CST 33(2), 2025; with the piecewise-constant adaptation law it matters little)
@@ -138,7 +144,9 @@ class ControllerConfig:
             _check_range("ControllerConfig", f"integral_limit_m_s[{i}]", limit, 0.0, 100.0)
         if self.disturbance not in DISTURBANCE_MODELS:
             raise ValueError(f"ControllerConfig.disturbance={self.disturbance!r}; allowed: {DISTURBANCE_MODELS}")
-        _check_range("ControllerConfig", "observer_tau_s", self.observer_tau_s, 0.01, 10.0)
+        _check_range("ControllerConfig", "observer_tau_s", self.observer_tau_s, 0.0, 10.0)
+        if self.observer_reads not in OBSERVER_READS:
+            raise ValueError(f"ControllerConfig.observer_reads={self.observer_reads!r}; allowed: {OBSERVER_READS}")
         _check_range("ControllerConfig", "l1_pole_1_s", self.l1_pole_1_s, 0.1, 100.0)
 
 

@@ -255,7 +255,8 @@ def test_search_rows_fly_their_own_candidate(family):
     (dict(ki_pos=(-1.0, 0.0, 0.0)), "ki_pos[0]"),
     (dict(integral_limit_m_s=(3.0, 3.0, -1.0)), "integral_limit_m_s"),
     (dict(disturbance="gps"), "disturbance"),
-    (dict(observer_tau_s=0.0), "observer_tau_s"),
+    (dict(observer_tau_s=-0.01), "observer_tau_s"),
+    (dict(observer_reads="gps"), "observer_reads"),
     (dict(l1_pole_1_s=0.0), "l1_pole_1_s"),
 ])
 def test_bad_classical_settings_name_the_field(change, field):

@@ -141,7 +141,7 @@ class ClassicalParams:
     integral_limit: Tensor  # [3] m s
     disturbance: str  # ControllerConfig.disturbance
     drag_half_rho_cda: Tensor  # [3] the airframe's drag model, 1/2 rho CdA per body axis
-    # 1 - exp(-dt / observer_tau_s): the force filter's step gain (a [N, 1] tensor: one per row, in a search)
+    # 1 - exp(-dt / observer_tau_s), 1 unfiltered: the force filter's step gain (a [N, 1] tensor: one per row, in a search)
     observer_gain: float | Tensor
     motor_gain: float  # 1 - exp(-dt / motor_time_constant_s): the modelled thrust's step gain
     l1_pole: float  # 1/s: a, the predictor's A_s = -a I
@@ -159,7 +159,7 @@ class ClassicalParams:
             integral_limit=t(cfg.integral_limit_m_s),
             disturbance=cfg.disturbance,
             drag_half_rho_cda=VehicleParams.from_config(vehicle, device).drag_half_rho_cda,  # the simulator's own
-            observer_gain=-math.expm1(-dt_s / cfg.observer_tau_s),
+            observer_gain=-math.expm1(-dt_s / cfg.observer_tau_s) if cfg.observer_tau_s > 0 else 1.0,
             motor_gain=-math.expm1(-dt_s / vehicle.motor_time_constant_s),
             l1_pole=cfg.l1_pole_1_s,
             l1_gain=cfg.l1_pole_1_s / math.expm1(cfg.l1_pole_1_s * dt_s),

@@ -284,8 +284,10 @@ class QuadSimulator:
                     rot=nav_rot,
                 )
             nav_omega = entry(meas, "gyro")
-        # the accelerometer as the law's feedback reads it: the true specific force with truth feedback
-        specific_force = entry(body, "specific_force") if feedback == "truth" else entry(meas, "accel")
+        # the accelerometer as the law's feedback reads it: the true specific force with truth
+        # feedback, or where the observer is given a perfect accelerometer
+        perfect = feedback == "truth" or self.cfg.controller.observer_reads == "true_specific_force"
+        specific_force = entry(body, "specific_force") if perfect else entry(meas, "accel")
         # the residual on the acceleration: the correction the step just set (zero at an episode's
         # start), from the reference heading's frame into the world's, for the wrench of the next step
         acc_correction = heading_to_world(entry(state, "control", "ff"), ref.yaw) if self.on_acceleration else None

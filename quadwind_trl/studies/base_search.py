@@ -48,10 +48,11 @@ def per_row_controller(candidates: Sequence[ControllerConfig], row_candidate: to
     families = sorted({c.disturbance for c in candidates})
     if len(families) > 1:
         raise ValueError(f"per_row_controller: candidates of one disturbance model only; got {families}")
-    pd_fields = {(c.kp_pos, c.kd_pos, c.max_tilt_deg, c.pos_error_limit_m, c.feedback) for c in candidates}
+    pd_fields = {(c.kp_pos, c.kd_pos, c.max_tilt_deg, c.pos_error_limit_m, c.feedback, c.observer_reads)
+                 for c in candidates}
     if len(pd_fields) > 1:
-        raise ValueError("per_row_controller: the candidates differ in their outer loop; only the classical additions "
-                         "and the inner loop's gains may")
+        raise ValueError("per_row_controller: the candidates differ in their outer loop or in what they read; only "
+                         "the classical additions and the inner loop's gains may")
     dt = config.timing.control_dt_s
     extras = [ClassicalParams.from_config(c, config.vehicle, dt, device) for c in candidates]
 

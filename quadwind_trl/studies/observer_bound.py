@@ -1,0 +1,129 @@
+"""How much better the best classical base could cancel the wind: its disturbance observer flown
+again with one idealisation at a time, on a regime's validation sweep.
+
+The stiffer-inner-loop observer (``dob_inner``) estimates the wind's force from the accelerometer
+and the modelled thrust, filters it, and cancels it in the outer loop. What it leaves has four
+sources, and each variant below removes some of them (the same episodes, paired):
+
+* ``as_flown``: the law as chosen on validation (the reference every gain is over);
+* ``unfiltered``: its filter off, the real accelerometer (what the filter's lag costs, or saves
+  from the sensor's noise);
+* ``perfect_accelerometer``: the true specific force (no noise, bias or sample-and-hold), the
+  chosen filter;
+* ``perfect_unfiltered``: the true specific force, unfiltered: the force the wind exerts is
+  cancelled from the next control step on. Any controller that reacts to the wind at the vehicle,
+  learned or not, reacts no sooner, so this is the ceiling of reactive wind information through
+  the outer loop (the attitude loop's lag stays, as it does for a residual on the acceleration);
+* ``true_state_unfiltered``: and every input of the law true (no navigation error: beyond any
+  controller's reach, shown for scale);
+* ``still_air``: the law as flown with the wind off: what cancelling every effect of the wind
+  would leave, the ceiling of any wind compensation on this sensing.
+
+The variants that differ only in the filter fly in one batch (the filter gain is a per-row
+constant, :func:`~quadwind_trl.studies.base_search.per_row_controller`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import torch
+from tensordict import TensorDictBase
+
+from ..config import ControllerConfig, EnvConfig
+from ..evaluation.statistics import paired_summary
+from ..regimes import classical_controller
+from .base_search import CandidateResult, fly_candidates
+from .error_budget import Wind, with_wind
+
+BASE = "dob_inner"  # the best classical law in xy on validation in both regimes
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One idealisation of the base law: changes to its :class:`ControllerConfig` and the wind."""
+
+    name: str
+    what: str
+    controller: dict = field(default_factory=dict)
+    wind: Wind = "full"
+
+
+VARIANTS: tuple[Variant, ...] = (
+    Variant("as_flown", "the law as chosen: the accelerometer, its chosen filter"),
+    Variant("unfiltered", "the accelerometer, unfiltered", {"observer_tau_s": 0.0}),
+    Variant("perfect_accelerometer", "the true specific force, the chosen filter", {"observer_reads": "true_specific_force"}),
+    Variant("perfect_unfiltered", "the true specific force, unfiltered: the wind's force cancelled from the next control step",
+            {"observer_reads": "true_specific_force", "observer_tau_s": 0.0}),
+    Variant("true_state_unfiltered", "every input true (no navigation error), unfiltered",
+            {"feedback": "truth", "observer_tau_s": 0.0}),
+    Variant("still_air", "the law as flown, the wind off", {}, "still"),
+)
+REFERENCE = "as_flown"
+
+
+def base_law(regime: str, config: EnvConfig, base: str = BASE) -> ControllerConfig:
+    """The regime's chosen ``base`` law on ``config``'s controller (its sensing kept)."""
+    law, _ = classical_controller(regime, base)
+    return replace(config.controller, **law)
+
+
+def fly_variants(
+    regime: str,
+    scenarios: TensorDictBase,
+    config: EnvConfig,
+    variants: Sequence[Variant] = VARIANTS,
+    *,
+    base: str = BASE,
+    spec_settings: dict | None = None,
+    compile_step: bool = False,
+    device: str = "cpu",
+    progress: bool = False,
+) -> dict[str, CandidateResult]:
+    """Every variant of the ``base`` law flown on ``scenarios`` (their wind changed per variant),
+    by name; variants that differ only in the filter share a batch."""
+    law = base_law(regime, config, base)
+    groups: dict[tuple, list[Variant]] = {}
+    for v in variants:
+        controller = replace(law, **v.controller)
+        groups.setdefault((controller.feedback, controller.observer_reads, v.wind), []).append(v)
+    flown: dict[str, CandidateResult] = {}
+    for (_, _, wind), members in groups.items():
+        candidates = [replace(law, **v.controller) for v in members]
+        results = fly_candidates(regime, candidates, with_wind(scenarios, wind), None, base_wind_input="zero",
+                                 config=config, spec_settings=spec_settings, device=device, compile_step=compile_step,
+                                 progress=progress)
+        flown.update({v.name: r for v, r in zip(members, results)})
+    return {v.name: flown[v.name] for v in variants}
+
+
+def _axis(reference: torch.Tensor, other: torch.Tensor, resamples: int) -> dict:
+    s = paired_summary(reference, other, resamples=resamples)
+    return {"rmse_m": s["other_mean"], "gain_pct": s["improvement"], "ci_low_pct": s["ci_low"],
+            "ci_high_pct": s["ci_high"], "wins": s["wins"], "episodes": s["n"],
+            "median_episode_gain_pct": float(100.0 * (1.0 - other.double() / reference.double()).median())}
+
+
+def bound_rows(flown: dict[str, CandidateResult], variants: Sequence[Variant] = VARIANTS,
+               resamples: int = 10_000) -> list[dict]:
+    """One row per variant: its mean RMSE and its paired gain over ``as_flown`` per axis (%, with
+    the bootstrap 95 % interval, wins and the median episode's gain), and its crashes."""
+    if REFERENCE not in flown:
+        raise ValueError(f"bound_rows: the reference variant {REFERENCE!r} was not flown; flown: {sorted(flown)}")
+    ref = flown[REFERENCE]
+    return [{"variant": v.name, "what": v.what, "controller": v.controller, "wind": v.wind,
+             "xy": _axis(ref.rmse_xy, flown[v.name].rmse_xy, resamples),
+             "z": _axis(ref.rmse_z, flown[v.name].rmse_z, resamples),
+             "crashed": int(flown[v.name].crashed.sum())} for v in variants]
+
+
+def bound_table(rows: Sequence[dict]) -> str:
+    """The rows as a markdown table (gains over ``as_flown``)."""
+    lines = ["| variant | what it idealises | xy (m) | xy gain (95 % interval), wins | z (m) | z gain, wins | crashed |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        xy, z = r["xy"], r["z"]
+        lines.append(f"| `{r['variant']}` | {r['what']} | {xy['rmse_m']:.3f} | {xy['gain_pct']:+.1f} % "
+                     f"[{xy['ci_low_pct']:+.1f}, {xy['ci_high_pct']:+.1f}], {xy['wins']}/{xy['episodes']} | "
+                     f"{z['rmse_m']:.3f} | {z['gain_pct']:+.1f} %, {z['wins']}/{z['episodes']} | {r['crashed']} |")
+    return "\n".join(lines)
