@@ -30,7 +30,7 @@ from quadwind_trl.quick import SWEEP_QUICK
 from quadwind_trl.regimes import VALIDATION_SWEEPS
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.policy import load_policy
-from quadwind_trl.studies.observer_bound import BASE, bound_rows, bound_table, fly_variants
+from quadwind_trl.studies.observer_bound import BASE, bound_rows, bound_table, costliest_episodes, episode_rows, fly_variants
 
 
 def main() -> None:
@@ -59,11 +59,13 @@ def main() -> None:
             scenarios = SWEEP_QUICK.scenarios(scenarios, VALIDATION_SWEEPS[regime].ranges.top_altitude_m)
         compile_step = (not args.quick and policy_compile_step(payload)) if args.compile is None else args.compile
         start = time.perf_counter()
-        rows = bound_rows(fly_variants(regime, scenarios, config, compile_step=compile_step, progress=not args.quick))
+        flown = fly_variants(regime, scenarios, config, compile_step=compile_step, progress=not args.quick)
+        rows = bound_rows(flown)
         wall = time.perf_counter() - start
         write_json(out, {"command": command_line(sys.argv), "git_commit": commit, "platform": platform_info(),
                          "regime": regime, "base": BASE, "episodes": scenarios.batch_size[0], "compile_step": compile_step,
-                         "config": config_to_dict(config), "wall_time_s": round(wall, 1), "variants": rows})
+                         "config": config_to_dict(config), "wall_time_s": round(wall, 1), "variants": rows,
+                         "per_episode": episode_rows(scenarios, flown)})
         print(f"{regime}: {BASE} on {scenarios.batch_size[0]} validation episodes ({wall:.0f} s)\n{bound_table(rows)}")
     write_markdown(results)
 
@@ -75,7 +77,14 @@ def write_markdown(results: Path) -> None:
         r = json.loads(path.read_text())
         parts += [f"## {r['regime']} ({r['episodes']} episodes; base `{r['base']}`)", "",
                   f"`{r['command']}` at `{r['git_commit']}`, {r['platform'].get('cpu', '')}, {r['wall_time_s']} s", "",
-                  bound_table(r["variants"]), ""]
+                  bound_table(r["variants"]), "",
+                  "Where the wind costs the law most in xy (`as_flown` minus `still_air`; share of the sweep's summed cost):", "",
+                  "| episode | pattern | wind (m/s) | turbulence intensity | altitude (m) | as flown (m) | still air (m) | share |",
+                  "|---|---|---|---|---|---|---|---|"]
+        parts += [f"| {e['episode']} | {e['traj_id']} | {e['wind_speed_ref_m_s']:g} | {e['turb_intensity']:g} | "
+                  f"{e['altitude_m']:g} | {e['as_flown_m']:.3f} | {e['still_air_m']:.3f} | {e['share_pct']:.0f} % |"
+                  for e in costliest_episodes(r["per_episode"])]
+        parts.append("")
     (results / "observer_bound.md").write_text("\n".join(parts))
 
 

@@ -19,7 +19,8 @@ from quadwind_trl.quick import SWEEP_QUICK
 from quadwind_trl.regimes import VALIDATION_SWEEPS
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.studies.base_search import per_row_controller
-from quadwind_trl.studies.observer_bound import REFERENCE, VARIANTS, base_law, bound_rows, bound_table, fly_variants
+from quadwind_trl.studies.observer_bound import (REFERENCE, VARIANTS, base_law, bound_rows, bound_table,
+                                                costliest_episodes, fly_variants)
 
 
 def test_an_unfiltered_observer_takes_the_whole_force_in_one_step():
@@ -115,4 +116,16 @@ def test_the_recipe_writes_its_rows_and_tables(tmp_path, monkeypatch):
     report = json.loads((tmp_path / "observer_bound_horizontal.json").read_text())
     assert [r["variant"] for r in report["variants"]] == [v.name for v in VARIANTS]
     assert report["base"] == "dob_inner" and report["episodes"] == 3 and "observer_bound.py" in report["command"]
+    assert len(report["per_episode"]["rmse_xy"]["still_air"]) == 3 and report["per_episode"]["traj_id"][0].endswith("_h")
     assert "## horizontal" in (tmp_path / "observer_bound.md").read_text()
+
+
+def test_the_costliest_episodes_are_where_the_wind_costs_most():
+    """The per-episode table names each episode's world, and the episodes where the wind costs the
+    law most come first, with their share of the sweep's summed cost."""
+    episodes = {"traj_id": ["a", "b", "c"], "wind_speed_ref_m_s": [2.0, 10.0, 6.0], "turb_intensity": [0.1, 0.25, 0.1],
+                "altitude_m": [50.0, 600.0, 100.0],
+                "rmse_xy": {REFERENCE: [0.20, 1.00, 0.30], "still_air": [0.21, 0.40, 0.20]}}
+    top = costliest_episodes(episodes, k=2)
+    assert [e["episode"] for e in top] == [1, 2] and top[0]["traj_id"] == "b"
+    assert top[0]["share_pct"] == pytest.approx(100.0 * 0.6 / 0.69) and top[1]["share_pct"] == pytest.approx(100.0 * 0.1 / 0.69)

@@ -32,6 +32,7 @@ from tensordict import TensorDictBase
 
 from ..config import ControllerConfig, EnvConfig
 from ..evaluation.statistics import paired_summary
+from ..envs.trajectories import trajectory_name
 from ..regimes import classical_controller
 from .base_search import CandidateResult, fly_candidates
 from .error_budget import Wind, with_wind
@@ -115,6 +116,30 @@ def bound_rows(flown: dict[str, CandidateResult], variants: Sequence[Variant] = 
              "xy": _axis(ref.rmse_xy, flown[v.name].rmse_xy, resamples),
              "z": _axis(ref.rmse_z, flown[v.name].rmse_z, resamples),
              "crashed": int(flown[v.name].crashed.sum())} for v in variants]
+
+
+EPISODE_FIELDS = ("traj_id", "wind_speed_ref_m_s", "turb_intensity", "altitude_m")  # what names an episode's world
+
+
+def episode_rows(scenarios: TensorDictBase, flown: dict[str, CandidateResult]) -> dict[str, list]:
+    """Per validation episode: its world (:data:`EPISODE_FIELDS`) and every variant's RMSEs (m), so
+    where the wind's cost lies can be read episode by episode."""
+    out = {name: scenarios[name].reshape(-1).tolist() for name in EPISODE_FIELDS}
+    out["traj_id"] = [trajectory_name(i) for i in out["traj_id"]]
+    out["rmse_xy"] = {name: r.rmse_xy.tolist() for name, r in flown.items()}
+    out["rmse_z"] = {name: r.rmse_z.tolist() for name, r in flown.items()}
+    return out
+
+
+def costliest_episodes(episodes: dict[str, list], k: int = 5, axis: str = "xy") -> list[dict]:
+    """The ``k`` episodes where the wind costs the law most (``as_flown`` minus ``still_air``, m),
+    with their world and their share of the sweep's summed cost (a negative cost counts too)."""
+    flown, still = episodes[f"rmse_{axis}"][REFERENCE], episodes[f"rmse_{axis}"]["still_air"]
+    cost = [a - b for a, b in zip(flown, still)]
+    total = sum(cost)
+    order = sorted(range(len(cost)), key=lambda i: cost[i], reverse=True)[:k]
+    return [{"episode": i, **{name: episodes[name][i] for name in EPISODE_FIELDS}, "as_flown_m": flown[i],
+             "still_air_m": still[i], "share_pct": 100.0 * cost[i] / total if total else float("nan")} for i in order]
 
 
 def bound_table(rows: Sequence[dict]) -> str:
