@@ -1,6 +1,6 @@
 """How much better the best classical base could cancel the wind (``quadwind_trl/studies/observer_bound.py``):
 the stiffer-inner-loop disturbance observer flown again on a regime's validation sweep with its
-filter off, a perfect accelerometer, the true state, and the wind off, each paired against the
+filter off, a perfect accelerometer, the true state, the wind off and a wider tilt limit, each paired against the
 law as chosen on the same episodes. No training: the ceiling of reactive wind information a
 learned residual is measured against.
 
@@ -30,7 +30,7 @@ from quadwind_trl.quick import SWEEP_QUICK
 from quadwind_trl.regimes import VALIDATION_SWEEPS
 from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.policy import load_policy
-from quadwind_trl.studies.observer_bound import BASE, bound_rows, bound_table, costliest_episodes, episode_rows, fly_variants
+from quadwind_trl.studies.observer_bound import BASE, bound_rows, bound_table, episode_rows, fly_variants, regime_markdown
 
 
 def main() -> None:
@@ -71,20 +71,10 @@ def main() -> None:
 
 
 def write_markdown(results: Path) -> None:
-    """``observer_bound.md``: one table per regime file in ``results``, with its command and commit."""
+    """``observer_bound.md``: every regime file in ``results``, as the results page shows them."""
     parts = ["# The observer's bound on validation", ""]
     for path in sorted(results.glob("observer_bound_*.json")):
-        r = json.loads(path.read_text())
-        parts += [f"## {r['regime']} ({r['episodes']} episodes; base `{r['base']}`)", "",
-                  f"`{r['command']}` at `{r['git_commit']}`, {r['platform'].get('cpu', '')}, {r['wall_time_s']} s", "",
-                  bound_table(r["variants"]), "",
-                  "Where the wind costs the law most in xy (`as_flown` minus `still_air`; share of the sweep's summed cost):", "",
-                  "| episode | pattern | wind (m/s) | turbulence intensity | altitude (m) | as flown (m) | still air (m) | share |",
-                  "|---|---|---|---|---|---|---|---|"]
-        parts += [f"| {e['episode']} | {e['traj_id']} | {e['wind_speed_ref_m_s']:g} | {e['turb_intensity']:g} | "
-                  f"{e['altitude_m']:g} | {e['as_flown_m']:.3f} | {e['still_air_m']:.3f} | {e['share_pct']:.0f} % |"
-                  for e in costliest_episodes(r["per_episode"])]
-        parts.append("")
+        parts += regime_markdown(json.loads(path.read_text()), path.name)
     (results / "observer_bound.md").write_text("\n".join(parts))
 
 

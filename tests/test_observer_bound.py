@@ -117,7 +117,7 @@ def test_the_recipe_writes_its_rows_and_tables(tmp_path, monkeypatch):
     assert [r["variant"] for r in report["variants"]] == [v.name for v in VARIANTS]
     assert report["base"] == "dob_inner" and report["episodes"] == 3 and "observer_bound.py" in report["command"]
     assert len(report["per_episode"]["rmse_xy"]["still_air"]) == 3 and report["per_episode"]["traj_id"][0].endswith("_h")
-    assert "## horizontal" in (tmp_path / "observer_bound.md").read_text()
+    assert "**horizontal** (3 validation episodes" in (tmp_path / "observer_bound.md").read_text()
 
 
 def test_the_costliest_episodes_are_where_the_wind_costs_most():
@@ -129,3 +129,19 @@ def test_the_costliest_episodes_are_where_the_wind_costs_most():
     top = costliest_episodes(episodes, k=2)
     assert [e["episode"] for e in top] == [1, 2] and top[0]["traj_id"] == "b"
     assert top[0]["share_pct"] == pytest.approx(100.0 * 0.6 / 0.69) and top[1]["share_pct"] == pytest.approx(100.0 * 0.1 / 0.69)
+
+
+def test_the_results_page_shows_each_regimes_bound(tmp_path, monkeypatch):
+    """The results page's section reads every regime's file under ``results/`` (the experiments
+    folder included): its table, command and the costliest episodes."""
+    from quadwind_trl.studies.observer_bound import SECTION
+    from quadwind_trl.studies.report import PAGE
+    from quadwind_trl.studies.section import ReportContext
+
+    monkeypatch.setattr(sys, "argv", ["recipes/observer_bound.py", "--quick", "--regimes", "horizontal",
+                                      "--results", str(tmp_path / "experiments" / "observer_bound")])
+    runpy.run_path("recipes/observer_bound.py", run_name="__main__")
+    assert SECTION in PAGE
+    text = SECTION.render(ReportContext(tmp_path, tmp_path / "sections", {}))
+    assert "**horizontal** (3 validation episodes" in text and "`results/experiments/observer_bound/observer_bound_horizontal.json`" in text
+    assert text.count("| `") == len(VARIANTS) and "Where the wind costs the law most" in text

@@ -18,6 +18,9 @@ sources, and each variant below removes some of them (the same episodes, paired)
   controller's reach, shown for scale);
 * ``still_air``: the law as flown with the wind off: what cancelling every effect of the wind
   would leave, the ceiling of any wind compensation on this sensing.
+* ``tilt_limit_45``: the law as flown with its commanded-tilt limit at 45 deg instead of the
+  paper's 35: not information but authority, for the episodes where the wind drives the vehicle to
+  its limits.
 
 The variants that differ only in the filter fly in one batch (the filter gain is a per-row
 constant, :func:`~quadwind_trl.studies.base_search.per_row_controller`).
@@ -36,6 +39,7 @@ from ..envs.trajectories import trajectory_name
 from ..regimes import classical_controller
 from .base_search import CandidateResult, fly_candidates
 from .error_budget import Wind, with_wind
+from .section import Section
 
 BASE = "dob_inner"  # the best classical law in xy on validation in both regimes
 
@@ -59,6 +63,8 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("true_state_unfiltered", "every input true (no navigation error), unfiltered",
             {"feedback": "truth", "observer_tau_s": 0.0}),
     Variant("still_air", "the law as flown, the wind off", {}, "still"),
+    Variant("tilt_limit_45", "the law as flown, its commanded tilt limited at 45 deg instead of 35 (more authority, not information)",
+            {"max_tilt_deg": 45.0}),
 )
 REFERENCE = "as_flown"
 
@@ -85,11 +91,11 @@ def fly_variants(
     by name; variants that differ only in the filter share a batch."""
     law = base_law(regime, config, base)
     groups: dict[tuple, list[Variant]] = {}
-    for v in variants:
+    for v in variants:  # a batch: one law but for its filter (a per-row constant), one wind
         controller = replace(law, **v.controller)
-        groups.setdefault((controller.feedback, controller.observer_reads, v.wind), []).append(v)
+        groups.setdefault((replace(controller, observer_tau_s=law.observer_tau_s), v.wind), []).append(v)
     flown: dict[str, CandidateResult] = {}
-    for (_, _, wind), members in groups.items():
+    for (_, wind), members in groups.items():
         candidates = [replace(law, **v.controller) for v in members]
         results = fly_candidates(regime, candidates, with_wind(scenarios, wind), None, base_wind_input="zero",
                                  config=config, spec_settings=spec_settings, device=device, compile_step=compile_step,
@@ -152,3 +158,35 @@ def bound_table(rows: Sequence[dict]) -> str:
                      f"[{xy['ci_low_pct']:+.1f}, {xy['ci_high_pct']:+.1f}], {xy['wins']}/{xy['episodes']} | "
                      f"{z['rmse_m']:.3f} | {z['gain_pct']:+.1f} %, {z['wins']}/{z['episodes']} | {r['crashed']} |")
     return "\n".join(lines)
+
+
+def regime_markdown(report: dict, path: str) -> list[str]:
+    """One regime's results file (``report``, at ``path``) as markdown: its command and commit,
+    the variants' table and the episodes where the wind costs the law most."""
+    lines = [f"**{report['regime']}** ({report['episodes']} validation episodes, base `{report['base']}`; `{path}`; "
+             f"`{report['command']}` at `{report['git_commit']}`, {report['platform'].get('cpu', '')})", "",
+             bound_table(report["variants"]), "",
+             "Where the wind costs the law most in xy (`as_flown` minus `still_air`; share of the sweep's summed cost):", "",
+             "| episode | pattern | wind (m/s) | turbulence intensity | altitude (m) | as flown (m) | still air (m) | share |",
+             "|---|---|---|---|---|---|---|---|"]
+    lines += [f"| {e['episode']} | {e['traj_id']} | {e['wind_speed_ref_m_s']:g} | {e['turb_intensity']:g} | "
+              f"{e['altitude_m']:g} | {e['as_flown_m']:.3f} | {e['still_air_m']:.3f} | {e['share_pct']:.0f} % |"
+              for e in costliest_episodes(report["per_episode"])]
+    return lines + [""]
+
+
+def observer_bound_section(results: dict[str, dict]) -> str:
+    """The section of ``docs/results.md``: every regime's file (by path under ``results/``)."""
+    lines = ["## What perfect wind cancellation would add to the best classical controller", "",
+             "No training: the stiffer-inner-loop observer flown again on each regime's validation sweep with its filter",
+             "off, a perfect accelerometer, the true state and the wind off, each paired against the law as chosen on the",
+             "same episodes (`quadwind_trl/studies/observer_bound.py`, `recipes/observer_bound.py`;",
+             "[rl.md](rl.md#the-observers-bound-what-perfect-reactive-cancellation-would-add) reads it).", ""]
+    order = sorted(results, key=lambda k: ("horizontal", "vertical").index(results[k]["regime"]))
+    for key in order:
+        lines += regime_markdown(results[key], f"results/{key}.json")
+    return "\n".join(lines)
+
+
+SECTION = Section.of_results("observer_bound", "What perfect wind cancellation would add", "**/observer_bound_*.json",
+                             observer_bound_section)

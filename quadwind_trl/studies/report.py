@@ -7,7 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from . import base_search, classical, error_budget, headroom, paired_ablation, pd_baseline, perception, pipeline_times, residual
+from . import base_search, classical, error_budget, headroom, observer_bound, paired_ablation, pd_baseline, perception
+from . import pipeline_times, residual
 from . import seeds, summary, toy as toy_page, training
 from .section import SECTION_FILES, ReportContext, Section
 
@@ -22,6 +23,7 @@ PAGE: tuple[Section, ...] = (
     base_search.SECTION,
     classical.SECTION,
     headroom.SECTION,
+    observer_bound.SECTION,
     perception.SECTION,
     residual.SECTION,
     pipeline_times.SECTION,
