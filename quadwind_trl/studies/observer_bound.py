@@ -179,7 +179,7 @@ def observer_bound_section(results: dict[str, dict]) -> str:
     """The section of ``docs/results.md``: every regime's file (by path under ``results/``)."""
     lines = ["## What perfect wind cancellation would add to the best classical controller", "",
              "No training: the stiffer-inner-loop observer flown again on each regime's validation sweep with its filter",
-             "off, a perfect accelerometer, the true state and the wind off, each paired against the law as chosen on the",
+             "off, a perfect accelerometer, the true state, the wind off and a wider tilt limit, each paired against the law as chosen on the",
              "same episodes (`quadwind_trl/studies/observer_bound.py`, `recipes/observer_bound.py`;",
              "[rl.md](rl.md#the-observers-bound-what-perfect-reactive-cancellation-would-add) reads it).", ""]
     order = sorted(results, key=lambda k: ("horizontal", "vertical").index(results[k]["regime"]))
