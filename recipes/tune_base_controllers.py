@@ -15,7 +15,10 @@ constant of L1 adaptive control's force (its predictor pole at the config's defa
 the integral gain on top of wind feed-forward from the shipped estimator (``Ki = 0`` is PD with
 feed-forward alone), ``dob_inner`` the inner loop's stiffness under the chosen observer (``K_R x s``,
 ``K_omega x sqrt(s)``: the attitude loop's damping kept, its speed times ``sqrt(s)``; the classical
-answer to a still-air tracking lag, so that it is not credited to learning). The candidates of a family fly in one batch (``studies.base_search``). Every family
+answer to a still-air tracking lag, so that it is not credited to learning), ``dob_inner_tilt`` the
+commanded-tilt limit under the chosen ``dob_inner`` (the episodes where the wind costs the
+observer most are where that limit binds: ``recipes/observer_bound.py``). The candidates of a
+family fly in one batch, the tilt limit's one batch each (``studies.base_search``). Every family
 flies in the env the shipped policy of the regime trained in (its config, its estimate's EMA and
 query interval), so the chosen controllers see the worlds the RL sees. Writes
 ``results/base_search_<regime>.json`` (``--quick``: under ``runs/quick/results``): every
@@ -55,14 +58,20 @@ TAU_GRID = (0.02, 0.03, 0.05, 0.1, 0.2, 0.4, 0.8, 1.6)
 # (about 2 at the paper's gains: overdamped, its slow pole near 3 rad/s) and raise its speed by
 # sqrt(s); s = 8 puts the slow pole near 9 rad/s, half the motors' 20 rad/s (one motor time constant)
 INNER_SCALE_GRID = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)
-QUICK_KI, QUICK_TAU, QUICK_INNER = (0.0, 2.0), (0.2, 0.8), (1.0, 3.0)
+# deg: the cascade's commanded-tilt limit under the chosen stiffer-inner-loop observer, from the
+# paper's 35 deg; the vehicle holds its height up to acos(1 / 2.5) = 66 deg at its maximum thrust
+# (2.5 x hover), and attitude-hold autopilots default to 35-45 deg (PX4's MPC_TILTMAX_AIR: 45 deg)
+TILT_GRID = (35.0, 40.0, 45.0, 50.0, 55.0)
+QUICK_KI, QUICK_TAU, QUICK_INNER, QUICK_TILT = (0.0, 2.0), (0.2, 0.8), (1.0, 3.0), (35.0, 45.0)
 
 
 def families(quick: bool, regime: str = "horizontal") -> dict[str, tuple[str, str, list[ControllerConfig]]]:
     """``{family: (searched field, base wind input, candidates)}``; ``dob_inner`` searches the inner
-    loop under the regime's chosen observer (``regimes.CLASSICAL_CHOICES``)."""
-    ki, tau, inner = (QUICK_KI, QUICK_TAU, QUICK_INNER) if quick else (KI_GRID, TAU_GRID, INNER_SCALE_GRID)
+    loop under the regime's chosen observer (``regimes.CLASSICAL_CHOICES``), ``dob_inner_tilt`` the
+    commanded-tilt limit under the chosen ``dob_inner``."""
+    ki, tau, inner, tilt = (QUICK_KI, QUICK_TAU, QUICK_INNER, QUICK_TILT) if quick else (KI_GRID, TAU_GRID, INNER_SCALE_GRID, TILT_GRID)
     dob = ControllerConfig(disturbance="observer", observer_tau_s=CLASSICAL_CHOICES[regime]["dob_tau_s"])
+    dob_inner = stiffer_inner_loop(dob, CLASSICAL_CHOICES[regime]["dob_inner_scale"])
     axes = lambda k: (k, k, k)  # noqa: E731
     return {
         "pid": ("ki_pos", "zero", [ControllerConfig(ki_pos=axes(k)) for k in ki]),
@@ -70,6 +79,7 @@ def families(quick: bool, regime: str = "horizontal") -> dict[str, tuple[str, st
         "l1": ("observer_tau_s", "zero", [ControllerConfig(disturbance="l1", observer_tau_s=t) for t in tau]),
         "pid_ff": ("ki_pos", "estimate", [ControllerConfig(ki_pos=axes(k), disturbance="wind_model") for k in ki]),
         "dob_inner": ("k_att", "zero", [stiffer_inner_loop(dob, s) for s in inner]),
+        "dob_inner_tilt": ("max_tilt_deg", "zero", [replace(dob_inner, max_tilt_deg=t) for t in tilt]),
     }
 
 

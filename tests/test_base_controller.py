@@ -229,20 +229,23 @@ def test_base_wind_input_gives_the_step_its_wind(source):
         raw.step(raw.full_action_spec.zero().update({"action": torch.zeros(2, 4)}))
 
 
-@pytest.mark.parametrize("family", ["observer_tau", "inner_loop"])
+@pytest.mark.parametrize("family", ["observer_tau", "inner_loop", "tilt_limit"])
 def test_search_rows_fly_their_own_candidate(family):
     """The validation search flies each candidate's copy of the episodes with that candidate's
     constants (the observer's filter, or the inner loop's gains): a batch of two candidates gives
     each candidate's results flown alone, to float rounding (other batch layout), on episodes of
-    different lengths (the runner's flight order)."""
+    different lengths (the runner's flight order). Candidates that differ in the outer loop (the
+    tilt limit) fly a batch each, so each is its flight alone."""
     cfg = _steady(ControllerConfig(disturbance="observer"))
     cfg = replace(cfg, trajectories=replace(cfg.trajectories, hover_duration_s=2.0, horizontal_duration_s=3.0),
                   timing=replace(cfg.timing, hold_control_steps=1))
     scenarios = make_scenarios(2, traj_id=["hover", "lawnmower_h"], altitude_m=5.0, wind_speed_ref_m_s=6.0,
                                turb_intensity=0.0, start_step=-1)
     dob = ControllerConfig(feedback="truth", disturbance="observer")
-    candidates = ([replace(dob, observer_tau_s=t) for t in (0.1, 1.0)] if family == "observer_tau"
-                  else [stiffer_inner_loop(dob, s) for s in (1.0, 4.0)])
+    candidates = {"observer_tau": [replace(dob, observer_tau_s=t) for t in (0.1, 1.0)],
+                  "inner_loop": [stiffer_inner_loop(dob, s) for s in (1.0, 4.0)],
+                  # 10 deg: at most 1.7 m/s^2 of horizontal acceleration, less than the pattern's turns ask
+                  "tilt_limit": [replace(dob, max_tilt_deg=t) for t in (10.0, 35.0)]}[family]
     both = fly_candidates("horizontal", candidates, scenarios, base_wind_input="zero", config=cfg)
     for candidate, result in zip(candidates, both):
         alone = fly_candidates("horizontal", [candidate], scenarios, base_wind_input="zero", config=cfg)[0]
@@ -294,12 +297,13 @@ def test_search_recipe_writes_its_table(tmp_path):
 
     root = Path(__file__).resolve().parent.parent
     out = subprocess.run([sys.executable, "recipes/tune_base_controllers.py", "--quick", "--regimes", "horizontal",
-                          "--families", "l1", "--results", str(tmp_path)], cwd=root, capture_output=True, text=True,
-                         timeout=900)
+                          "--families", "l1", "dob_inner_tilt", "--results", str(tmp_path)], cwd=root, capture_output=True,
+                         text=True, timeout=900)
     assert out.returncode == 0, out.stderr[-3000:]
     result = json.loads((tmp_path / "base_search_horizontal.json").read_text())
     family = result["families"]["l1"]
     assert [row["value"] for row in family["candidates"]] == [0.2, 0.8]
+    assert [row["value"] for row in result["families"]["dob_inner_tilt"]["candidates"]] == [35.0, 45.0]
     assert family["chosen"] == select_candidate(family["candidates"], result["pd"]["crashed"])["value"]
     assert result["pd"]["improvement_xy_pct"] == 0.0 and result["episodes"] == 3
     assert {"command", "git_commit", "platform", "estimate"} <= set(result)

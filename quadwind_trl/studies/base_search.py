@@ -37,6 +37,12 @@ from .training import on_paper_pd
 
 
 
+def _batch(c: ControllerConfig) -> tuple:
+    """What the candidates of one batch share: the outer loop and what the law reads (a
+    simulator's settings, one per env); the rest are per-row constants (:func:`per_row_controller`)."""
+    return c.kp_pos, c.kd_pos, c.max_tilt_deg, c.pos_error_limit_m, c.feedback, c.observer_reads
+
+
 def per_row_controller(candidates: Sequence[ControllerConfig], row_candidate: torch.Tensor, config: EnvConfig,
                        device: torch.device | str = "cpu") -> CascadeController:
     """One :class:`CascadeController` whose env row ``i`` flies ``candidates[row_candidate[i]]``:
@@ -48,9 +54,7 @@ def per_row_controller(candidates: Sequence[ControllerConfig], row_candidate: to
     families = sorted({c.disturbance for c in candidates})
     if len(families) > 1:
         raise ValueError(f"per_row_controller: candidates of one disturbance model only; got {families}")
-    pd_fields = {(c.kp_pos, c.kd_pos, c.max_tilt_deg, c.pos_error_limit_m, c.feedback, c.observer_reads)
-                 for c in candidates}
-    if len(pd_fields) > 1:
+    if len({_batch(c) for c in candidates}) > 1:
         raise ValueError("per_row_controller: the candidates differ in their outer loop or in what they read; only "
                          "the classical additions and the inner loop's gains may")
     dt = config.timing.control_dt_s
@@ -113,26 +117,36 @@ def fly_candidates(
     compile_step: bool = False,
     progress: bool = False,
 ) -> list[CandidateResult]:
-    """Every candidate (one family) flown on ``scenarios`` in one batch; results in candidate order.
+    """Every candidate (one family) flown on ``scenarios``; results in candidate order. Candidates
+    that differ only in per-row constants (the integral, the observer's filter, the inner loop's
+    gains) fly in one batch; those that differ in the outer loop (e.g. the tilt limit) or in what
+    the law reads fly in a batch each.
 
     ``config``: the env config the candidates replace the controller of (default: the regime's).
     ``base_wind_input``: what a wind feed-forward family flies on (``RLEnvSpec.base_wind_input``;
     ``"estimate"`` needs ``estimator``). ``spec_settings``: other :class:`~quadwind_trl.rl.envs.RLEnvSpec`
     fields (the estimate's ``ema_tau_s`` and ``estimate_every_s``)."""
-    m, k = scenarios.batch_size[0], len(candidates)
-    spec = RLEnvSpec(regime=regime, num_envs=m * k, device=device, compile_step=compile_step,
-                     wind_input="estimate" if base_wind_input == "estimate" else "truth",
-                     base_wind_input=base_wind_input, config=replace(config or RLEnvSpec(regime).env_config,
-                                                                     controller=candidates[0]),
-                     **(spec_settings or {}))
-    flights = torch.cat([scenarios] * k)  # candidate-major: row i is candidate i // m's
-    # the runner flies the rows longest first: env row j flies flight order[j]
-    order, _ = flight_order(spec.env_config, flights, device)
-    controller = per_row_controller(candidates, order // m, spec.env_config, device)
-    env = build_env(spec, estimator, controller=controller, freeze_norm=True)
-    res = fly(env, flights, progress=progress)
-    return [CandidateResult(c, res.rmse_xy[i * m:(i + 1) * m], res.rmse_z[i * m:(i + 1) * m],
-                            res.crashed[i * m:(i + 1) * m]) for i, c in enumerate(candidates)]
+    batches: dict[tuple, list[int]] = {}
+    for i, c in enumerate(candidates):
+        batches.setdefault(_batch(c), []).append(i)
+    results: dict[int, CandidateResult] = {}
+    m = scenarios.batch_size[0]
+    for members in batches.values():
+        batch = [candidates[i] for i in members]
+        spec = RLEnvSpec(regime=regime, num_envs=m * len(batch), device=device, compile_step=compile_step,
+                         wind_input="estimate" if base_wind_input == "estimate" else "truth",
+                         base_wind_input=base_wind_input, config=replace(config or RLEnvSpec(regime).env_config,
+                                                                         controller=batch[0]),
+                         **(spec_settings or {}))
+        flights = torch.cat([scenarios] * len(batch))  # candidate-major: row i is candidate i // m's
+        # the runner flies the rows longest first: env row j flies flight order[j]
+        order, _ = flight_order(spec.env_config, flights, device)
+        controller = per_row_controller(batch, order // m, spec.env_config, device)
+        env = build_env(spec, estimator, controller=controller, freeze_norm=True)
+        res = fly(env, flights, progress=progress)
+        results.update({i: CandidateResult(c, res.rmse_xy[k * m:(k + 1) * m], res.rmse_z[k * m:(k + 1) * m],
+                                           res.crashed[k * m:(k + 1) * m]) for k, (i, c) in enumerate(zip(members, batch))})
+    return [results[i] for i in range(len(candidates))]
 
 
 def select_candidate(rows: Sequence[dict], pd_crashed: int) -> dict:
@@ -143,8 +157,10 @@ def select_candidate(rows: Sequence[dict], pd_crashed: int) -> dict:
 
 
 FAMILY_LABEL = {"pid": "PD + integral (PID)", "dob": "PD + disturbance observer", "l1": "PD + L1 adaptive",
-                "pid_ff": "PD + integral + wind feed-forward", "dob_inner": "PD + disturbance observer, stiffer inner loop"}
-FIELD_LABEL = {"ki_pos": "K_i (1/s^3)", "observer_tau_s": "tau (s)", "k_att": "K_R roll (N m/rad; K_omega x sqrt)"}
+                "pid_ff": "PD + integral + wind feed-forward", "dob_inner": "PD + disturbance observer, stiffer inner loop",
+                "dob_inner_tilt": "PD + disturbance observer, stiffer inner loop: the tilt limit"}
+FIELD_LABEL = {"ki_pos": "K_i (1/s^3)", "observer_tau_s": "tau (s)", "k_att": "K_R roll (N m/rad; K_omega x sqrt)",
+               "max_tilt_deg": "commanded-tilt limit (deg)"}
 POLICY_KINDS = (("wind-aware RL", "estimate"), ("trained-blind RL", "zero"), ("trained-oracle RL", "truth"))
 
 

@@ -23,7 +23,7 @@ sources, and each variant below removes some of them (the same episodes, paired)
   its limits.
 
 The variants that differ only in the filter fly in one batch (the filter gain is a per-row
-constant, :func:`~quadwind_trl.studies.base_search.per_row_controller`).
+constant, :func:`~quadwind_trl.studies.base_search.fly_candidates`).
 """
 from __future__ import annotations
 
@@ -88,18 +88,14 @@ def fly_variants(
     progress: bool = False,
 ) -> dict[str, CandidateResult]:
     """Every variant of the ``base`` law flown on ``scenarios`` (their wind changed per variant),
-    by name; variants that differ only in the filter share a batch."""
+    by name; variants that differ only in the filter share a batch (:func:`fly_candidates`)."""
     law = base_law(regime, config, base)
-    groups: dict[tuple, list[Variant]] = {}
-    for v in variants:  # a batch: one law but for its filter (a per-row constant), one wind
-        controller = replace(law, **v.controller)
-        groups.setdefault((replace(controller, observer_tau_s=law.observer_tau_s), v.wind), []).append(v)
     flown: dict[str, CandidateResult] = {}
-    for (_, wind), members in groups.items():
-        candidates = [replace(law, **v.controller) for v in members]
-        results = fly_candidates(regime, candidates, with_wind(scenarios, wind), None, base_wind_input="zero",
-                                 config=config, spec_settings=spec_settings, device=device, compile_step=compile_step,
-                                 progress=progress)
+    for wind in dict.fromkeys(v.wind for v in variants):  # one fly_candidates per wind, in order
+        members = [v for v in variants if v.wind == wind]
+        results = fly_candidates(regime, [replace(law, **v.controller) for v in members], with_wind(scenarios, wind), None,
+                                 base_wind_input="zero", config=config, spec_settings=spec_settings, device=device,
+                                 compile_step=compile_step, progress=progress)
         flown.update({v.name: r for v, r in zip(members, results)})
     return {v.name: flown[v.name] for v in variants}
 
