@@ -161,17 +161,21 @@ SWEEP_REGIME = {"horizontal": "horizontal", "vertical": "vertical", "ood": "hori
 # "Classical base controllers"): the integral gain Ki (1/s^3, every axis) of pid and pid_ff, and the
 # filter time constants (s) of the observer's and of L1 adaptive control's force; and, under the
 # chosen observer, the inner loop's stiffness s (config.stiffer_inner_loop: K_R x s, K_omega x
-# sqrt(s); results/experiments/inner_loop/base_search_<regime>.json). The out-of-distribution
-# sweep flies the horizontal ones.
+# sqrt(s); results/experiments/inner_loop/base_search_<regime>.json); and, under that, the
+# cascade's commanded-tilt limit (deg; results/experiments/tilt_limit/base_search_<regime>.json).
+# The out-of-distribution sweep flies the horizontal ones.
 CLASSICAL_CHOICES = {
-    "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.02, "dob_inner_scale": 2.0},
-    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.2, "dob_inner_scale": 3.0},
+    "horizontal": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.02, "dob_inner_scale": 2.0,
+                   "dob_inner_tilt_deg": 40.0},
+    "vertical": {"pid_ki": 3.0, "pid_ff_ki": 2.0, "dob_tau_s": 0.02, "l1_tau_s": 0.2, "dob_inner_scale": 3.0,
+                 "dob_inner_tilt_deg": 50.0},
 }
-CLASSICAL_CONTROLLERS = ("pid", "dob", "dob_inner", "l1", "pd_ff", "pd_ff_blind", "pd_ff_oracle", "pid_ff",
-                         "pid_ff_blind", "pid_ff_oracle")
+CLASSICAL_CONTROLLERS = ("pid", "dob", "dob_inner", "dob_inner_tilt", "l1", "pd_ff", "pd_ff_blind", "pd_ff_oracle",
+                         "pid_ff", "pid_ff_blind", "pid_ff_oracle")
 # how tables and figures name them
 CLASSICAL_LABEL = {"pid": "PD + integral", "dob": "PD + disturbance observer",
-                   "dob_inner": "PD + disturbance observer, stiffer inner loop", "l1": "PD + L1 adaptive",
+                   "dob_inner": "PD + disturbance observer, stiffer inner loop",
+                   "dob_inner_tilt": "PD + disturbance observer, stiffer inner loop, wider tilt limit", "l1": "PD + L1 adaptive",
                    "pd_ff": "PD + wind feed-forward",
                    "pd_ff_blind": "PD + feed-forward, estimate at zero", "pd_ff_oracle": "PD + feed-forward, true wind",
                    "pid_ff": "PID + wind feed-forward", "pid_ff_blind": "PID + feed-forward, estimate at zero",
@@ -189,14 +193,17 @@ def classical_controller(regime: str, name: str) -> tuple[dict, str]:
     # every classical addition set, and the paper's inner loop, so that a config that already has
     # some (a policy trained on another base) flies exactly this law
     paper = ControllerConfig()
-    changes = {"ki_pos": (0.0, 0.0, 0.0), "disturbance": "none", "k_att": paper.k_att, "k_rate": paper.k_rate}
+    changes = {"ki_pos": (0.0, 0.0, 0.0), "disturbance": "none", "k_att": paper.k_att, "k_rate": paper.k_rate,
+               "max_tilt_deg": paper.max_tilt_deg}
     if name == "pid":
         return changes | {"ki_pos": (chosen["pid_ki"],) * 3}, "zero"
-    if name in ("dob", "dob_inner"):
+    if name in ("dob", "dob_inner", "dob_inner_tilt"):
         changes |= {"disturbance": "observer", "observer_tau_s": chosen["dob_tau_s"]}
-        if name == "dob_inner":
+        if name != "dob":
             stiff = stiffer_inner_loop(paper, chosen["dob_inner_scale"])
             changes |= {"k_att": stiff.k_att, "k_rate": stiff.k_rate}
+        if name == "dob_inner_tilt":
+            changes["max_tilt_deg"] = chosen["dob_inner_tilt_deg"]
         return changes, "zero"
     if name == "l1":
         return changes | {"disturbance": "l1", "observer_tau_s": chosen["l1_tau_s"]}, "zero"

@@ -368,3 +368,18 @@ def test_stiffer_inner_loop_keeps_the_attitude_damping():
         assert math.sqrt(stiff.k_att[axis] / j) == pytest.approx(2 * math.sqrt(paper.k_att[axis] / j), rel=1e-12)
     with pytest.raises(ValueError, match="scale=0"):
         stiffer_inner_loop(paper, 0.0)
+
+
+def test_the_tilt_limited_observer_is_dob_inner_with_its_chosen_tilt_limit():
+    """``dob_inner_tilt`` is ``dob_inner`` with the commanded-tilt limit its validation search
+    chose; every other law sets the paper's limit, so a config that had another (a policy trained
+    on this base) flies exactly the law named."""
+    from quadwind_trl.regimes import CLASSICAL_CHOICES, classical_controller
+
+    for regime in ("horizontal", "vertical"):
+        inner, _ = classical_controller(regime, "dob_inner")
+        tilt, wind = classical_controller(regime, "dob_inner_tilt")
+        assert wind == "zero" and tilt == inner | {"max_tilt_deg": CLASSICAL_CHOICES[regime]["dob_inner_tilt_deg"]}
+        assert inner["max_tilt_deg"] == ControllerConfig().max_tilt_deg == 35.0
+        wide = replace(ControllerConfig(), **tilt)
+        assert replace(wide, **classical_controller(regime, "pid")[0]).max_tilt_deg == 35.0
