@@ -23,13 +23,9 @@ from pathlib import Path
 import torch
 
 from quadwind_trl.config import config_to_dict
-from quadwind_trl.evaluation.ablation import policy_compile_step, policy_env_config
-from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, write_json
+from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
 from quadwind_trl.outputs import hold_for_command
-from quadwind_trl.quick import SWEEP_QUICK
-from quadwind_trl.regimes import VALIDATION_SWEEPS
-from quadwind_trl.rl.paired import validation_scenarios
-from quadwind_trl.rl.policy import load_policy
+from quadwind_trl.studies.base_search import validation_setup
 from quadwind_trl.studies.observer_bound import BASE, bound_rows, bound_table, episode_rows, fly_variants, regime_markdown
 
 
@@ -51,13 +47,7 @@ def main() -> None:
     commit = git_commit()  # before this run writes its (tracked) outputs
     for regime, out in zip(args.regimes, outputs):
         # the env the regime's policies train and are screened in (its sensing, flights and estimate)
-        _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
-        config = policy_env_config(payload)
-        scenarios = validation_scenarios(regime, 3 if args.quick else None)
-        if args.quick:
-            config = SWEEP_QUICK.config(config)
-            scenarios = SWEEP_QUICK.scenarios(scenarios, VALIDATION_SWEEPS[regime].ranges.top_altitude_m)
-        compile_step = (not args.quick and policy_compile_step(payload)) if args.compile is None else args.compile
+        config, scenarios, compile_step, _ = validation_setup(regime, args.quick, args.compile)
         start = time.perf_counter()
         flown = fly_variants(regime, scenarios, config, compile_step=compile_step, progress=not args.quick)
         rows = bound_rows(flown)

@@ -41,15 +41,11 @@ import torch
 
 from quadwind_trl.config import ControllerConfig, config_to_dict, stiffer_inner_loop
 from quadwind_trl.estimator import load_estimator
-from quadwind_trl.evaluation.ablation import policy_compile_step, policy_env_config
-from quadwind_trl.manifest import CHECKPOINT_DIR, command_line, git_commit, platform_info, write_json
+from quadwind_trl.manifest import command_line, git_commit, platform_info, write_json
 from quadwind_trl.outputs import hold_for_command
-from quadwind_trl.quick import SWEEP_QUICK
-from quadwind_trl.regimes import CLASSICAL_CHOICES, VALIDATION_SWEEPS
+from quadwind_trl.regimes import CLASSICAL_CHOICES
 from quadwind_trl.rl.envs import policy_env_settings
-from quadwind_trl.rl.paired import validation_scenarios
-from quadwind_trl.rl.policy import load_policy
-from quadwind_trl.studies.base_search import fly_candidates, select_candidate
+from quadwind_trl.studies.base_search import fly_candidates, select_candidate, validation_setup
 
 KI_GRID = (0.0, 0.5, 1.0, 2.0, 3.0, 4.0, 6.0)  # 1/s^3, every axis
 # s; down to two control steps: the horizontal search's best was its smallest value at 0.05 s
@@ -129,18 +125,11 @@ def main() -> None:
     commit = git_commit()  # before this run writes its (tracked) outputs: a second regime's file is not "dirty"
 
     for regime, out in zip(args.regimes, outputs):
-        _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
-        config = policy_env_config(payload)
-        if args.quick:
-            config = SWEEP_QUICK.config(config)
+        config, scenarios, compile_step, payload = validation_setup(regime, args.quick, args.compile)
         estimator = load_estimator(regime, config=config)
         # the estimate the policy sees (its EMA and query interval); the rest is each family's own
         settings = {key: value for key, value in policy_env_settings(payload["env_spec"], estimator).items()
                     if key in ("ema_tau_s", "estimate_every_s")}
-        compile_step = (not args.quick and policy_compile_step(payload)) if args.compile is None else args.compile
-        scenarios = validation_scenarios(regime, 3 if args.quick else None)
-        if args.quick:
-            scenarios = SWEEP_QUICK.scenarios(scenarios, VALIDATION_SWEEPS[regime].ranges.top_altitude_m)
         report = {"command": command_line(sys.argv), "git_commit": commit, "platform": platform_info(),
                   "regime": regime, "episodes": scenarios.batch_size[0], "compile_step": compile_step,
                   "estimate": settings, "config": config_to_dict(config), "families": kept_families(out, args.families)}

@@ -37,6 +37,31 @@ from .training import on_paper_pd
 
 
 
+def validation_setup(regime: str, quick: bool = False, compile_step: bool | None = None
+                     ) -> tuple[EnvConfig, TensorDictBase, bool, dict]:
+    """What a classical law flies in on validation: the env config the regime's shipped policy
+    trained in (its sensing, flights and estimate; the quick sweep's short flights under
+    ``quick``), the validation sweep (three episodes under ``quick``), whether the step is
+    compiled (``compile_step`` None: as the policy trained, eager under ``quick``), and the
+    policy file's payload."""
+    from ..evaluation.ablation import policy_compile_step, policy_env_config
+    from ..manifest import CHECKPOINT_DIR
+    from ..quick import SWEEP_QUICK
+    from ..regimes import VALIDATION_SWEEPS
+    from ..rl.paired import validation_scenarios
+    from ..rl.policy import load_policy
+
+    _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
+    config = policy_env_config(payload)
+    scenarios = validation_scenarios(regime, 3 if quick else None)
+    if quick:
+        config = SWEEP_QUICK.config(config)
+        scenarios = SWEEP_QUICK.scenarios(scenarios, VALIDATION_SWEEPS[regime].ranges.top_altitude_m)
+    if compile_step is None:
+        compile_step = not quick and policy_compile_step(payload)
+    return config, scenarios, compile_step, payload
+
+
 def _batch(c: ControllerConfig) -> tuple:
     """What the candidates of one batch share: the outer loop and what the law reads (a
     simulator's settings, one per env); the rest are per-row constants (:func:`per_row_controller`)."""
