@@ -147,6 +147,9 @@ class ControllerConfig:
         _check_range("ControllerConfig", "observer_tau_s", self.observer_tau_s, 0.0, 10.0)
         if self.observer_reads not in OBSERVER_READS:
             raise ValueError(f"ControllerConfig.observer_reads={self.observer_reads!r}; allowed: {OBSERVER_READS}")
+        if self.observer_reads != "accelerometer" and self.disturbance != "observer":
+            raise ValueError(f"ControllerConfig.observer_reads={self.observer_reads!r} is read by the disturbance observer "
+                             f"alone; disturbance={self.disturbance!r} (allowed with it: 'observer')")
         _check_range("ControllerConfig", "l1_pole_1_s", self.l1_pole_1_s, 0.1, 100.0)
 
 

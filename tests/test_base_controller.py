@@ -260,6 +260,7 @@ def test_search_rows_fly_their_own_candidate(family):
     (dict(disturbance="gps"), "disturbance"),
     (dict(observer_tau_s=-0.01), "observer_tau_s"),
     (dict(observer_reads="gps"), "observer_reads"),
+    (dict(observer_reads="true_specific_force", disturbance="l1"), "observer_reads"),
     (dict(l1_pole_1_s=0.0), "l1_pole_1_s"),
 ])
 def test_bad_classical_settings_name_the_field(change, field):
