@@ -2,8 +2,8 @@
 again with one idealisation at a time, on a regime's validation sweep.
 
 The stiffer-inner-loop observer (``dob_inner``) estimates the wind's force from the accelerometer
-and the modelled thrust, filters it, and cancels it in the outer loop. What it leaves has four
-sources, and each variant below removes some of them (the same episodes, paired):
+and the modelled thrust, filters it, and cancels it in the outer loop. Each variant below removes
+one thing that could limit it (the same episodes, paired):
 
 * ``as_flown``: the law as chosen on validation (the reference every gain is over);
 * ``unfiltered``: its filter off, the real accelerometer (what the filter's lag costs, or saves
