@@ -28,8 +28,13 @@ from ..config import ControllerConfig, EnvConfig
 from ..envs.controller import CascadeController, ClassicalParams, ControllerParams
 from ..estimator import WindEstimator
 from ..envs.runner import flight_order, fly
+from ..evaluation.ablation import policy_compile_step, policy_env_config
+from ..manifest import CHECKPOINT_DIR
+from ..quick import SWEEP_QUICK
+from ..regimes import VALIDATION_SWEEPS
 from ..rl.envs import RLEnvSpec, WindInput, build_env
-from ..rl.paired import improvement, validation_score, win_rate
+from ..rl.paired import improvement, validation_scenarios, validation_score, win_rate
+from ..rl.policy import load_policy
 from .section import ReportContext, Section
 from .tables import seed_stats
 from .training import on_paper_pd
@@ -44,13 +49,6 @@ def validation_setup(regime: str, quick: bool = False, compile_step: bool | None
     ``quick``), the validation sweep (three episodes under ``quick``), whether the step is
     compiled (``compile_step`` None: as the policy trained, eager under ``quick``), and the
     policy file's payload."""
-    from ..evaluation.ablation import policy_compile_step, policy_env_config
-    from ..manifest import CHECKPOINT_DIR
-    from ..quick import SWEEP_QUICK
-    from ..regimes import VALIDATION_SWEEPS
-    from ..rl.paired import validation_scenarios
-    from ..rl.policy import load_policy
-
     _, payload = load_policy(CHECKPOINT_DIR / f"policy_{regime}.pt")
     config = policy_env_config(payload)
     scenarios = validation_scenarios(regime, 3 if quick else None)
