@@ -139,6 +139,20 @@ PRIVILEGED_GROUPS: dict[str, tuple[str, ...]] = {
     "true_vel_error": _heading_vector("true_vel_err"),  # true velocity minus the reference, m/s
 }
 PRIVILEGED_CHANNELS: tuple[str, ...] = tuple(c for group in PRIVILEGED_GROUPS.values() for c in group)
+#: s: how far ahead of now the reference preview looks (``RLEnvSpec.preview_inputs``). Half a second
+#: is about the position loop's time constant (the paper's kp 5 /s^2, kd 3.5 /s: 1 / (zeta omega_n) =
+#: 0.57 s); two seconds are 20 m of path at the 10 m/s cruise speed, over which a 50 m radius turn
+#: (the racetrack's) turns the heading by 23 deg: long enough to see a turn coming and start it early,
+#: as a model-predictive controller does over its horizon
+REFERENCE_AHEAD_S: tuple[float, ...] = (0.5, 1.0, 2.0)
+#: the reference ahead a policy may read beside the observation (``RLEnvSpec.preview_inputs``,
+#: ``--preview-inputs``), one group per horizon of :data:`REFERENCE_AHEAD_S`: where the reference will
+#: be that long from now, from the vehicle's navigation position (m; horizontal parts in the heading
+#: frame, as the observation's). What a controller that plans can read and a reactive one cannot
+PREVIEW_GROUPS: dict[str, tuple[str, ...]] = {
+    f"ahead_{h:g}s": _heading_vector(f"ahead_{h:g}s") for h in REFERENCE_AHEAD_S
+}
+PREVIEW_CHANNELS: tuple[str, ...] = tuple(c for group in PREVIEW_GROUPS.values() for c in group)
 
 
 def named_channels(names: Sequence[str], groups: dict[str, tuple[str, ...]], field: str,

@@ -21,7 +21,7 @@ from .controller import BaseController
 from .simulator import QuadSimulator
 from .task import Task, TrackingTask
 from .tensordicts import entry
-from .trajectories import HORIZONTAL, trajectory_ids
+from .trajectories import HORIZONTAL, Reference, trajectory_ids
 
 
 @dataclass(frozen=True)
@@ -318,6 +318,14 @@ class QuadWindEnv(EnvBase):
         # without the constructor's per-entry checks (they cost more than the step's arithmetic at
         # small batches): every entry is the simulator's, of batch [N] on this env's device
         return TensorDict._new_unsafe(entries, batch_size=self.batch_size, device=self.device)
+
+    def reference_at(self, step: torch.Tensor) -> Reference:
+        """The reference of each running episode at control step ``step`` (``[N]`` int64; e.g. a
+        second ahead of now, which a planning controller may read): the trajectory the episode flies,
+        as the simulator evaluates it every control step (past its end, its last sample)."""
+        scenario = entry(self.params, "scenario")
+        return self.sim.trajectories.reference(entry(scenario, "traj_id"), step, entry(self.params, "pattern_start"),
+                                               entry(scenario, "altitude_m"))
 
     def sim_state(self, key: NestedKey) -> torch.Tensor:
         """A copy of one entry of the simulator's state or, failing that, of its per-episode

@@ -123,7 +123,7 @@ def fly_controllers(
             settings["base_wind_input"] = base_wind
             # no policy reads this env's observation: the policy's own inputs (its base law's state, its
             # memory, its normalisation) may not exist on this law, and would change nothing flown
-            for key in ("base_state_inputs", "memory_frames", "recurrent_hidden"):
+            for key in ("base_state_inputs", "preview_inputs", "memory_frames", "recurrent_hidden"):
                 settings.pop(key)
             flown = replace(config, controller=replace(config.controller, **law))
             env = make_env(regime, estimator if base_wind == "estimate" else None, n,

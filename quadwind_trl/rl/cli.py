@@ -16,7 +16,7 @@ import torch
 
 from ..config import RESIDUAL_TARGETS, SENSING, EnvConfig, ResidualConfig, with_sensing
 from ..estimator import DEFAULT_TAU_S, default_estimator_path, load_estimator
-from ..keys import BASE_STATE_GROUPS, INPUT_GROUPS, PRIVILEGED_GROUPS, input_channels
+from ..keys import BASE_STATE_GROUPS, INPUT_GROUPS, PREVIEW_GROUPS, PRIVILEGED_GROUPS, input_channels
 from ..quick import PPO_QUICK
 from ..ray_cluster import RayUnavailable
 from ..regimes import CLASSICAL_CONTROLLERS, PAPER_REWARD_W_Z, REWARD_W_Z, classical_controller, regime_config
@@ -109,6 +109,10 @@ def build_parser(regime: str, description: str) -> argparse.ArgumentParser:
                    help=f"the base controller's state the policy reads beside its 23 inputs, in training and whenever it "
                         f"flies: groups ({base_groups}) or channel names, those the --base-controller has (dob, l1: force "
                         "thrust ff; l1 also vel_err; pid: integral ff), or all: every one it has; default: none")
+    p.add_argument("--preview-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
+                   help=f"the reference ahead the policy reads after those, in training and whenever it flies: where the "
+                        f"reference will be from the vehicle, groups ({' '.join(PREVIEW_GROUPS)}: 0.5, 1 and 2 s from now) "
+                        "or channel names (keys.PREVIEW_CHANNELS); default: none")
     priv_groups = "; ".join(f"{name}: {' '.join(channels)}" for name, channels in PRIVILEGED_GROUPS.items())
     p.add_argument("--privileged-inputs", nargs="+", default=[], metavar="GROUP_OR_CHANNEL",
                    help=f"simulator truth the critic alone reads, at training time only (an asymmetric actor-critic; the "
@@ -216,6 +220,7 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
                          estimator_path=args.estimator, untrained_estimator=args.untrained_estimator,
                          config=config, base_wind_input=base_wind, compile_step=not args.eager,
                          zero_inputs=input_channels(args.zero_inputs), base_state_inputs=tuple(args.base_state_inputs),
+                         preview_inputs=tuple(args.preview_inputs),
                          privileged_inputs=tuple(args.privileged_inputs), memory_frames=args.memory_frames,
                          recurrent_hidden=args.recurrent_hidden)
     except ValueError as err:  # a bad setting (e.g. --zero-inputs tilt): the message names the allowed values
@@ -255,7 +260,8 @@ def run(regime: str, args: argparse.Namespace, *, curriculum: bool = False) -> d
         raise SystemExit(f"error: {err}") from None
     print(f"wind estimate EMA: tau = {spec.ema_tau_s:g} s; estimator every {spec.estimate_every_s:g} s; "
           f"wind input: {spec.wind_input}; inputs zeroed: {', '.join(spec.zero_inputs) or 'none'}; base state read: "
-          f"{', '.join(spec.base_state_inputs) or 'none'}; critic's privileged inputs: "
+          f"{', '.join(spec.base_state_inputs) or 'none'}; reference ahead read: "
+          f"{', '.join(spec.preview_inputs) or 'none'}; critic's privileged inputs: "
           f"{', '.join(spec.privileged_inputs) or 'none'}; memory: {spec.memory_frames} frame(s)"
           f"; residual on the {spec.env_config.residual.acts_on}"
           f"{f', recurrent actor of {spec.recurrent_hidden} units' if spec.recurrent_hidden else ''}", flush=True)

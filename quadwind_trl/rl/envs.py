@@ -10,7 +10,9 @@ Stack (``env.transform[i]``)::
     1 WindEstimate        wind_hat: estimate (frozen net + EMA) | truth (oracle)
     . BaseWindInput       (a wind feed-forward base controller only) base_wind_ne, the base law's
                           step input: the estimate, the true mean wind or zero (base_wind_input)
-    2 PolicyObservation   observation [23 + B]: the paper's 23, then the B base_state_inputs channels
+    . ReferenceAhead      (preview_inputs only) ref_ahead [3, 3]: the reference 0.5, 1, 2 s ahead
+    2 PolicyObservation   observation [23 + B + P]: the paper's 23, then the B base_state_inputs
+                          channels, then the P preview_inputs channels
     . PrivilegedObservation  (privileged_inputs only: training) privileged [P], the critic's truth
     3 RunningObsNorm      (VecNormV2) running mean/var of observation, reduce_batch_dims=True, decay=1.0
     4 ClipTransform       observation clipped to [-obs_clip, obs_clip] after normalisation
@@ -33,14 +35,14 @@ estimator's validation flights (:func:`validated_tau_s`). How often the estimato
 ``RLEnvSpec.estimate_every_s`` (default: every 10 Hz log tick, 0.1 s); the filter's time constant
 stays in seconds whatever it is. ``RLEnvSpec.zero_inputs`` names policy inputs forced to 0 in
 training and in every flight (a policy trained without them). The learning levers are off by
-default: ``base_state_inputs`` (the base controller's state as policy inputs), ``memory_frames``
-(the last K observations) and ``privileged_inputs`` (simulator truth for the critic alone, in the
-training env alone).
+default: ``base_state_inputs`` (the base controller's state as policy inputs), ``preview_inputs``
+(the reference ahead of now as policy inputs), ``memory_frames`` (the last K observations) and
+``privileged_inputs`` (simulator truth for the critic alone, in the training env alone).
 
 Trained policies record these settings in their env spec, and flying them must use them:
 :func:`policy_env_settings` reads them (with what policies saved before a setting existed used:
 their estimator checkpoint's tau, the estimator at every tick, no zeroed inputs, no base state, no
-memory).
+preview, no memory).
 """
 from __future__ import annotations
 
@@ -63,11 +65,11 @@ from ..envs.ray_rows import RayRowsEnv
 from ..envs.scenarios import RegimeRanges
 from ..envs.trajectories import HORIZONTAL, VERTICAL
 from ..estimator import DEFAULT_TAU_S, EMAConfig, WindEstimator, load_estimator
-from ..keys import (BASE_STATE_GROUPS, OBSERVATION_KEY, PRIVILEGED_CHANNELS, PRIVILEGED_GROUPS, PRIVILEGED_KEY,
-                    RECURRENT_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS, named_channels, observation_channels)
+from ..keys import (BASE_STATE_GROUPS, OBSERVATION_KEY, PREVIEW_GROUPS, PRIVILEGED_CHANNELS, PRIVILEGED_GROUPS,
+                    PRIVILEGED_KEY, RECURRENT_KEY, WIND_CHANNELS, ZEROABLE_CHANNELS, named_channels, observation_channels)
 from ..regimes import HORIZONTAL_RL, VERTICAL_RL, regime_config
 from ..transforms import (BaseWindInput, EpisodeControl, ObservationStack, PolicyObservation, PrivilegedObservation,
-                          RunningObsNorm, WindEstimate, ZeroInputs)
+                          ReferenceAhead, RunningObsNorm, WindEstimate, ZeroInputs)
 from ..transforms.observation import base_state_channels
 from ..transforms.wind import estimate_stride
 
@@ -130,6 +132,9 @@ class RLEnvSpec:
     # names or groups the selected base law has: its force estimate, integral, feed-forward, ...; "all":
     # every one it has); () the paper's inputs
     base_state_inputs: tuple[str, ...] = ()
+    # the reference ahead the policy reads after those (keys.PREVIEW_CHANNELS names or groups: where the
+    # reference will be 0.5, 1 and 2 s from now, from the vehicle); () the paper's inputs
+    preview_inputs: tuple[str, ...] = ()
     # simulator truth an asymmetric critic reads at training time (keys.PRIVILEGED_CHANNELS: true mean
     # wind, turbulence, true errors), never the actor; only the training env computes it
     privileged_inputs: tuple[str, ...] = ()
@@ -177,6 +182,8 @@ class RLEnvSpec:
         # stored as the tuple of channels, in catalogue order (a JSON list, or a group name, is the same setting)
         object.__setattr__(self, "base_state_inputs",
                            named_channels(base, BASE_STATE_GROUPS, "RLEnvSpec.base_state_inputs", allowed=have))
+        object.__setattr__(self, "preview_inputs",
+                           named_channels(self.preview_inputs, PREVIEW_GROUPS, "RLEnvSpec.preview_inputs"))
         object.__setattr__(self, "privileged_inputs",
                            named_channels(self.privileged_inputs, PRIVILEGED_GROUPS, "RLEnvSpec.privileged_inputs"))
         frames = self.memory_frames
@@ -189,8 +196,9 @@ class RLEnvSpec:
     @property
     def observation_channels(self) -> tuple[str, ...]:
         """The channels of one frame of the policy's observation: the paper's 23 (22 with the residual
-        on the acceleration: :func:`~quadwind_trl.keys.observation_channels`), then ``base_state_inputs``."""
-        return self.policy_channels + self.base_state_inputs
+        on the acceleration: :func:`~quadwind_trl.keys.observation_channels`), then ``base_state_inputs``,
+        then ``preview_inputs``."""
+        return self.policy_channels + self.base_state_inputs + self.preview_inputs
 
     @property
     def policy_channels(self) -> tuple[str, ...]:
@@ -241,7 +249,8 @@ def _row_transforms(spec: RLEnvSpec, estimator: WindEstimator | None, rows: slic
         WindEstimate(estimator if source == "estimate" else None, EMAConfig(tau_s=spec.ema_tau_s), source=source, config=cfg,
                      every_s=spec.estimate_every_s),
         *base_wind,
-        PolicyObservation(cfg, base_channels=spec.base_state_inputs),
+        *([ReferenceAhead(cfg.timing.control_dt_s)] if spec.preview_inputs else []),
+        PolicyObservation(cfg, base_channels=spec.base_state_inputs, preview_channels=spec.preview_inputs),
         *([PrivilegedObservation(spec.privileged_inputs)] if spec.privileged_inputs else []),
     ]
 
@@ -402,11 +411,11 @@ def recipe_estimate_every_s(tau_s: float, log_dt_s: float) -> float:
 def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> dict:
     """The :class:`RLEnvSpec` settings a saved policy trained with and must fly with, from its
     checkpoint's ``env_spec``, as ``make_env`` keywords: ``ema_tau_s``, ``estimate_every_s``,
-    ``zero_inputs``, ``base_wind_input``, ``base_state_inputs`` and ``memory_frames`` (never
-    ``privileged_inputs``: the critic's, at training time only). Policies saved before the spec
-    recorded a setting trained with: the tau their estimator's checkpoint held (the env then read
-    it from there; else the default), the estimator at every log tick, no zeroed inputs, no base
-    state, no memory."""
+    ``zero_inputs``, ``base_wind_input``, ``base_state_inputs``, ``preview_inputs``, ``memory_frames``
+    and ``recurrent_hidden`` (never ``privileged_inputs``: the critic's, at training time only).
+    Policies saved before the spec recorded a setting trained with: the tau their estimator's
+    checkpoint held (the env then read it from there; else the default), the estimator at every log
+    tick, no zeroed inputs, no base state, no preview, no memory."""
     tau = env_spec["ema_tau_s"] if "ema_tau_s" in env_spec else getattr(estimator, "ema_tau_s", None)
     return {
         "ema_tau_s": DEFAULT_TAU_S if tau is None else float(tau),
@@ -414,6 +423,7 @@ def policy_env_settings(env_spec: Mapping, estimator: WindEstimator | None) -> d
         "zero_inputs": tuple(env_spec.get("zero_inputs", ())),
         "base_wind_input": env_spec.get("base_wind_input", "estimate"),
         "base_state_inputs": tuple(env_spec.get("base_state_inputs", ())),
+        "preview_inputs": tuple(env_spec.get("preview_inputs", ())),
         "memory_frames": int(env_spec.get("memory_frames", 1)),
         "recurrent_hidden": int(env_spec.get("recurrent_hidden", 0)),
     }

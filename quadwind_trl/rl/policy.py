@@ -100,7 +100,7 @@ def network_dims(env_spec: RLEnvSpec | Mapping) -> dict[str, int]:
     :func:`build_actor_critic` keywords."""
     get = (lambda name, default: getattr(env_spec, name)) if isinstance(env_spec, RLEnvSpec) else env_spec.get
     target = residual_target(env_spec)
-    per_frame = len(observation_channels(target)) + len(get("base_state_inputs", ()))
+    per_frame = len(observation_channels(target)) + len(get("base_state_inputs", ())) + len(get("preview_inputs", ()))
     return {"obs_dim": per_frame * int(get("memory_frames", 1)), "privileged_dim": len(get("privileged_inputs", ())),
             "recurrent_hidden": int(get("recurrent_hidden", 0)), "action_dim": ResidualConfig(acts_on=target).channels}
 
@@ -200,11 +200,12 @@ def load_policy(path: str | Path, device="cpu") -> tuple[ProbabilisticActor, dic
     payload = load_checkpoint(path, "policy", device)
     saved = payload.get("observation_channels")
     layout = observation_channels(residual_target(payload["env_spec"]))
-    expected = list(layout) + list(payload["env_spec"].get("base_state_inputs", ()))
+    expected = (list(layout) + list(payload["env_spec"].get("base_state_inputs", ()))
+                + list(payload["env_spec"].get("preview_inputs", ())))
     if saved is not None and list(saved) != expected:
         raise ValueError(f"{path} was trained on another observation layout ({len(saved)} channels: {saved}); "
                          f"this version's is keys.observation_channels ({len(layout)} channels for its residual) "
-                         f"followed by the policy's base_state_inputs: {expected}")
+                         f"followed by the policy's base_state_inputs and preview_inputs: {expected}")
     cfg = payload["ppo_config"]
     cfg = PPOConfig(**{**cfg, "hidden": tuple(cfg["hidden"])})
     # the actor reads no privileged input: the file's critic, if any, is not rebuilt here

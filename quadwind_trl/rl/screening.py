@@ -60,6 +60,9 @@ def _levers(regime: str) -> dict[str, tuple[str, ...]]:
         # the residual corrects the base law's desired acceleration (where the observer corrects),
         # not its wrench: the policy need not learn the attitude loop
         "accel_residual": ("--residual-on", "acceleration"),
+        # the residual reads where the reference will be 0.5, 1 and 2 s from now: it can start a turn
+        # or a climb before the error shows, where the commanded-tilt limit leaves a reactive law behind
+        "preview": ("--preview-inputs", "ahead_0.5s", "ahead_1s", "ahead_2s"),
     }
 
 

@@ -9,7 +9,9 @@
   others a policy trains without).
 * :class:`PolicyObservation`: the paper's 23-dim ``observation`` (layout and keys:
   :mod:`quadwind_trl.keys`, wind at ``WIND_INDICES``, looked up by channel name), optionally
-  followed by named channels of the base controller's state.
+  followed by named channels of the base controller's state and of the reference ahead.
+* :class:`ReferenceAhead`: where the reference will be 0.5, 1 and 2 s from now, from the vehicle
+  (``ref_ahead``), for a policy that plans.
 * :class:`PrivilegedObservation`: simulator truth (true mean wind, turbulence, true errors) for an
   asymmetric critic at training time only (``privileged``).
 * :class:`ObservationStack`: the last K observations side by side (a policy with memory).
@@ -36,7 +38,7 @@ from .base_wind import BaseWindInput
 from .episode import EpisodeControl
 from .memory import ObservationStack
 from .normalization import RunningObsNorm
-from .observation import PolicyObservation, PrivilegedObservation, ZeroInputs
+from .observation import PolicyObservation, PrivilegedObservation, ReferenceAhead, ZeroInputs
 from .wind import WindEstimate
 
 __all__ = [
@@ -45,6 +47,7 @@ __all__ = [
     "ObservationStack",
     "PolicyObservation",
     "PrivilegedObservation",
+    "ReferenceAhead",
     "RunningObsNorm",
     "WindEstimate",
     "ZeroInputs",

@@ -61,8 +61,11 @@ from torchrl.envs import Transform
 from ..config import GRAVITY_M_S2, EnvConfig
 from ..envs.controller import make_base_controller
 from ..estimator.features import FeatureExtractor
-from ..keys import (BASE_STATE_GROUPS, BASE_STATE_KEY, MEAS_KEY, OBSERVATION_KEY, PRIVILEGED_CHANNELS, PRIVILEGED_KEY,
-                    RESIDUAL_ENTRY, WIND_KEY, observation_channels, observation_index)
+from ..keys import (BASE_STATE_GROUPS, BASE_STATE_KEY, MEAS_KEY, OBSERVATION_KEY, PREVIEW_CHANNELS, PRIVILEGED_CHANNELS,
+                    PRIVILEGED_KEY, REFERENCE_AHEAD_S, RESIDUAL_ENTRY, WIND_KEY, observation_channels, observation_index)
+
+#: the env entry :class:`ReferenceAhead` writes
+REFERENCE_AHEAD_KEY = "ref_ahead"
 
 #: base-state group -> the entries of the base law's state (``env.base``) it is computed from (any of them)
 BASE_STATE_SOURCES: dict[str, tuple[str, ...]] = {
@@ -101,7 +104,9 @@ class PolicyObservation(Transform):
     """Concatenates the 23 policy inputs (22 with the residual on the acceleration) into
     ``out_key`` (default ``"observation"``), and after them the base controller's state channels
     ``base_channels`` (names of :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS`, read from the
-    env's ``base`` entry; default none: the paper's 23).
+    env's ``base`` entry; default none: the paper's 23), then the ``preview_channels`` (names of
+    :data:`~quadwind_trl.keys.PREVIEW_CHANNELS`, read from ``ref_ahead``, which
+    :class:`ReferenceAhead` writes; default none).
 
     Reads ``meas``, ``ref_pos``, ``ref_yaw``, ``pos_error``, ``pd_wrench``, the applied residual
     (``ff_wrench``, or ``ff_acc`` on the acceleration: ``keys.RESIDUAL_ENTRY``) and ``wind_key``
@@ -110,7 +115,7 @@ class PolicyObservation(Transform):
     """
 
     def __init__(self, config: EnvConfig | None = None, *, wind_key: str = WIND_KEY, out_key: str = OBSERVATION_KEY,
-                 base_channels: Sequence[str] = ()):
+                 base_channels: Sequence[str] = (), preview_channels: Sequence[str] = ()):
         cfg = config or EnvConfig()
         self.ff_key = RESIDUAL_ENTRY[cfg.residual.acts_on]
         self.dim = len(observation_channels(cfg.residual.acts_on))
@@ -123,6 +128,13 @@ class PolicyObservation(Transform):
                 raise ValueError(f"PolicyObservation(base_channels={self.base_channels!r}): {wrong} are not channels of "
                                  f"this base controller; allowed: {have}")
             in_keys.append("nav_vel")
+        self.preview_channels = tuple(preview_channels)
+        wrong = [c for c in self.preview_channels if c not in PREVIEW_CHANNELS]
+        if wrong:
+            raise ValueError(f"PolicyObservation(preview_channels={self.preview_channels!r}): {wrong} unknown; allowed: "
+                             f"{PREVIEW_CHANNELS}")
+        if self.preview_channels:
+            in_keys.append(REFERENCE_AHEAD_KEY)
         super().__init__(in_keys=in_keys, out_keys=[out_key])
         self.wind_key, self.out_key = wind_key, out_key
         self.mass_kg = cfg.vehicle.mass_kg
@@ -160,6 +172,8 @@ class PolicyObservation(Transform):
         )
         if self.base_channels:  # a constructor constant: without them the observation is the paper's, bit for bit
             obs = torch.cat((obs, self._base_state(next_tensordict, yaw.unsqueeze(-1))), -1)
+        if self.preview_channels:  # likewise
+            obs = torch.cat((obs, self._preview(next_tensordict, yaw.unsqueeze(-1))), -1)
         next_tensordict.set(self.out_key, obs)
         return next_tensordict
 
@@ -187,6 +201,14 @@ class PolicyObservation(Transform):
             parts.update({f"base_ff_{k}": v for k, v in _heading_vector(ff, yaw).items()})
         return torch.cat([parts[c] for c in self.base_channels], -1)
 
+    def _preview(self, td: TensorDictBase, yaw: torch.Tensor) -> torch.Tensor:
+        """The ``preview_channels`` of the reference ahead, ``[N, P]``."""
+        ahead = td.get(REFERENCE_AHEAD_KEY)  # [N, K, 3] ENU
+        parts: dict[str, torch.Tensor] = {}
+        for k, horizon in enumerate(REFERENCE_AHEAD_S):
+            parts.update({f"ahead_{horizon:g}s_{c}": v for c, v in _heading_vector(ahead[:, k], yaw).items()})
+        return torch.cat([parts[c] for c in self.preview_channels], -1)
+
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return self._call(tensordict_reset)
 
@@ -194,9 +216,45 @@ class PolicyObservation(Transform):
         return self._call(tensordict)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        observation_spec[self.out_key] = Unbounded(
-            shape=(*observation_spec.shape, self.dim + len(self.base_channels)), device=observation_spec.device
-        )
+        width = self.dim + len(self.base_channels) + len(self.preview_channels)
+        observation_spec[self.out_key] = Unbounded(shape=(*observation_spec.shape, width), device=observation_spec.device)
+        return observation_spec
+
+
+class ReferenceAhead(Transform):
+    """Where the reference will be :data:`~quadwind_trl.keys.REFERENCE_AHEAD_S` seconds from now,
+    from the vehicle's navigation position: ``ref_ahead`` ``[N, K, 3]`` (ENU, m), the input of a
+    policy that plans (``PolicyObservation(preview_channels=...)`` reads it in the heading frame).
+
+    Reads ``step`` and ``nav_pos`` and asks the env it transforms for the trajectory ahead
+    (:meth:`~quadwind_trl.envs.quad_env.QuadWindEnv.reference_at`): the planned path is known to the
+    vehicle, as the reference now is, so no simulator truth enters. Stateless.
+    """
+
+    def __init__(self, control_dt_s: float, *, out_key: str = REFERENCE_AHEAD_KEY):
+        if not control_dt_s > 0:
+            raise ValueError(f"ReferenceAhead(control_dt_s={control_dt_s!r}); allowed: > 0 s")
+        super().__init__(in_keys=["step", "nav_pos"], out_keys=[out_key])
+        self.out_key = out_key
+        self.steps_ahead = tuple(round(h / control_dt_s) for h in REFERENCE_AHEAD_S)  # control steps, per horizon
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        td = next_tensordict
+        env = self.parent.base_env
+        steps = td.get("step")  # [N, 1]
+        ahead = torch.stack([env.reference_at((steps + k)[:, 0]).pos for k in self.steps_ahead], -2)
+        td.set(self.out_key, ahead - td.get("nav_pos").unsqueeze(-2))
+        return td
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        observation_spec[self.out_key] = Unbounded(shape=(*observation_spec.shape, len(REFERENCE_AHEAD_S), 3),
+                                                   device=observation_spec.device)
         return observation_spec
 
 
