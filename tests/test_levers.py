@@ -1,5 +1,5 @@
 """The learning levers a user switches on by name (``RLEnvSpec.base_state_inputs``,
-``privileged_inputs``, ``memory_frames``): each validated at the boundary, computed from what it
+``preview_inputs``, ``privileged_inputs``, ``memory_frames``): each validated at the boundary, computed from what it
 names, off by default (the stack and the policy as before), recorded in the policy file, and
 rebuilt when the policy is loaded; the privileged inputs never reach the actor nor any flight."""
 from __future__ import annotations
@@ -16,7 +16,8 @@ from tensordict import TensorDict
 from quadwind_trl.config import GRAVITY_M_S2
 from quadwind_trl.envs.runner import fly
 from quadwind_trl.estimator import untrained_estimator
-from quadwind_trl.keys import BASE_STATE_CHANNELS, OBSERVATION_CHANNELS, OBSERVATION_DIM, PRIVILEGED_CHANNELS
+from quadwind_trl.keys import (BASE_STATE_CHANNELS, OBSERVATION_CHANNELS, OBSERVATION_DIM, PREVIEW_CHANNELS,
+                               PRIVILEGED_CHANNELS)
 from quadwind_trl.manifest import CHECKPOINT_DIR
 from quadwind_trl.rl.cli import build_parser, run, with_base_controller
 from quadwind_trl.rl.config import PPOConfig
@@ -25,7 +26,7 @@ from quadwind_trl.rl.paired import validation_scenarios
 from quadwind_trl.rl.envs import EnvFactory
 from quadwind_trl.rl.policy import build_actor_critic, check_recurrent, load_policy, network_dims, spec_to_dict
 from quadwind_trl.rl.trainer import PPOTrainer, ResumeMismatch, check_same_env
-from quadwind_trl.transforms import ObservationStack, PolicyObservation, PrivilegedObservation
+from quadwind_trl.transforms import ObservationStack, PolicyObservation, PrivilegedObservation, ReferenceAhead
 from torchrl.collectors import Collector
 from torchrl.envs.utils import ExplorationType
 from torchrl.modules import GRUModule, set_recurrent_mode
@@ -78,6 +79,9 @@ def test_bad_lever_settings_are_refused_naming_the_field_and_the_allowed_names()
                                                     r"allowed for the critic only, in privileged_inputs"),
         ({"privileged_inputs": ("force",)}, r"RLEnvSpec\.privileged_inputs=\('force',\): unknown \['force'\]; allowed: "
                                             r"the groups \['mean_wind', 'true_error', 'true_vel_error', 'turbulence'\]"),
+        ({"preview_inputs": ("ahead_3s",)}, r"RLEnvSpec\.preview_inputs=\('ahead_3s',\): unknown \['ahead_3s'\]; "
+                                            r"allowed: the groups \['ahead_0\.5s', 'ahead_1s', 'ahead_2s'\]"),
+        ({"preview_inputs": ("true_error",)}, r"RLEnvSpec\.preview_inputs=\('true_error',\): unknown \['true_error'\]"),
         ({"memory_frames": 0}, r"RLEnvSpec\.memory_frames=0; allowed: a whole number >= 1"),
         ({"memory_frames": 2.0}, r"RLEnvSpec\.memory_frames=2\.0; allowed: a whole number >= 1"),
     ):
@@ -88,6 +92,10 @@ def test_bad_lever_settings_are_refused_naming_the_field_and_the_allowed_names()
         RLEnvSpec(base_state_inputs=("force",))
     with pytest.raises(ValueError, match=r"ObservationStack\(frames=0\); allowed: a whole number >= 1"):
         ObservationStack(0)
+    with pytest.raises(ValueError, match=r"PolicyObservation\(preview_channels=\('ahead_1s',\)\): \['ahead_1s'\] unknown"):
+        PolicyObservation(preview_channels=("ahead_1s",))  # the transform takes channels; groups are the spec's
+    with pytest.raises(ValueError, match=r"ReferenceAhead\(control_dt_s=0\); allowed: > 0 s"):
+        ReferenceAhead(0)
 
 
 def test_each_base_law_offers_the_channels_of_its_state():
@@ -113,6 +121,7 @@ def test_the_ppo_recipes_refuse_bad_levers_before_any_output(tmp_path):
     for flags, why in ((["--base-state-inputs", "integral"], r"error: RLEnvSpec\.base_state_inputs=\('integral',\): "
                                                              r"\['integral'\] not available here"),
                        (["--base-state-inputs", "turbulence"], r"error: RLEnvSpec\.base_state_inputs=.* are privileged"),
+                       (["--preview-inputs", "ahead_3s"], r"error: RLEnvSpec\.preview_inputs=\('ahead_3s',\): unknown"),
                        (["--memory-frames", "0"], r"error: RLEnvSpec\.memory_frames=0")):
         args = build_parser("horizontal", "").parse_args(["--quick", "--base-controller", "dob", *flags,
                                                           "--out", str(tmp_path / "run")])
@@ -125,8 +134,9 @@ def test_the_ppo_recipes_refuse_bad_levers_before_any_output(tmp_path):
 
 def test_the_levers_off_leave_the_stack_and_the_networks_as_before(bundle):
     plain = make_env("horizontal", bundle, 1, config=short_config(), compile_step=False)
-    assert not any(isinstance(t, (ObservationStack, PrivilegedObservation)) for t in plain.transform)
+    assert not any(isinstance(t, (ObservationStack, PrivilegedObservation, ReferenceAhead)) for t in plain.transform)
     assert plain.observation_spec["observation"].shape[-1] == OBSERVATION_DIM
+    assert "ref_ahead" not in plain.observation_spec.keys()
     assert network_dims(RLEnvSpec()) == {"obs_dim": OBSERVATION_DIM, "privileged_dim": 0, "recurrent_hidden": 0,
                                          "action_dim": 4}
     actor, value = build_actor_critic(PPOConfig(hidden=(8, 8)))
@@ -159,11 +169,11 @@ def test_the_stack_with_every_lever_passes_torchrls_spec_check():
 
     config, base_wind = base_config("l1")
     env = make_env("horizontal", None, 3, wind_input="truth", config=config, base_wind_input=base_wind,
-                   base_state_inputs=("all",), privileged_inputs=("mean_wind", "true_vel_error"), memory_frames=2,
-                   recurrent_hidden=8, compile_step=False)
+                   base_state_inputs=("all",), preview_inputs=("ahead_1s",), privileged_inputs=("mean_wind", "true_vel_error"),
+                   memory_frames=2, recurrent_hidden=8, compile_step=False)
     check_env_specs(env)
     spec = env.observation_spec
-    assert spec["observation"].shape[-1] == 2 * (OBSERVATION_DIM + len(base_state_channels(config)))
+    assert spec["observation"].shape[-1] == 2 * (OBSERVATION_DIM + len(base_state_channels(config)) + 3)
     assert spec["privileged"].shape[-1] == 6 and spec["recurrent_state"].shape[-2:] == (1, 8)
 
 
@@ -203,6 +213,39 @@ def test_base_state_channels_are_the_base_laws_state_and_action_zero_is_still_th
     for i, name in enumerate(channels):
         torch.testing.assert_close(raw[:, OBSERVATION_DIM + i:OBSERVATION_DIM + i + 1], expect[name], msg=name)
     assert raw[:, BASE_INDEX].ne(0).any(0).all()  # every channel has moved after 8 control steps of flight
+
+
+def test_the_reference_ahead_is_where_the_reference_will_be_from_the_vehicle_and_restarts_with_each_episode(bundle):
+    # decisions of 0.1 s: the horizons 0.5, 1 and 2 s are 5, 10 and 20 decisions ahead
+    env, flown = _flight(bundle, "dob", 24, hold=10, preview_inputs=PREVIEW_CHANNELS, obs_clip=None)
+    _, plain = _flight(bundle, "dob", 24, hold=10, obs_clip=None)
+    assert torch.equal(flown["truth", "pos"], plain["truth", "pos"])  # the physics untouched, bit for bit
+    assert torch.equal(flown["observation"][..., :OBSERVATION_DIM], plain["observation"])  # the 23 inputs too
+    ahead, ref, nav = flown["ref_ahead"], flown["ref_pos"], flown["nav_pos"]  # [3, 25, 3, 3], [3, 25, 3]
+    for k, decisions in enumerate((5, 10, 20)):
+        torch.testing.assert_close(ahead[:, :25 - decisions, k], ref[:, decisions:] - nav[:, :25 - decisions])
+    assert (ahead[:, :, 2].norm(dim=-1).amax(1) > 10).all()  # metres ahead as the pattern speeds up, not a rounding
+    # the observation's channels: the same vectors in the heading frame of the measured yaw
+    last = flown[:, -1]
+    raw = PolicyObservation(base_config("dob")[0], preview_channels=PREVIEW_CHANNELS)._call(last.clone())["observation"]
+    yaw = last["meas", "attitude"][..., 2:3]
+    for k in range(3):
+        vec = last["ref_ahead"][:, k]
+        fwd, left = to_heading_frame(vec[..., :1], vec[..., 1:2], yaw)
+        torch.testing.assert_close(raw[:, OBSERVATION_DIM + 3 * k:OBSERVATION_DIM + 3 * k + 3],
+                                   torch.cat((fwd, left, vec[..., 2:]), -1))
+    # past the trajectory's end the reference holds its last sample, as the flown reference does
+    base = env.base_env
+    end = base.params["end_step"]
+    torch.testing.assert_close(base.reference_at(end + 500).pos, base.reference_at(end + 1).pos)
+    # a row that restarts reads its new episode's trajectory at once
+    first = env.reset()
+    td = env.reset(first.clone().set("_reset", torch.tensor([[False], [True], [False]])),
+                   scenario=scenarios(3, traj=("figure8_h", "hover", "racetrack_h"), start_step=[-1] * 3))
+    new = base.reference_at(base.state["step"] + 10).pos - td["nav_pos"]
+    torch.testing.assert_close(td["ref_ahead"][1, 1], new[1])
+    assert not torch.equal(td["ref_ahead"][1], first["ref_ahead"][1])
+    assert torch.equal(td["ref_ahead"][[0, 2]], first["ref_ahead"][[0, 2]])  # the others fly on
 
 
 def test_privileged_channels_are_the_truth_and_only_the_training_env_computes_them(bundle):
@@ -332,7 +375,8 @@ def test_a_recurrent_actor_refuses_the_ppo_settings_it_cannot_train_with():
 def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_flies_without_privileged(tmp_path):
     config, base_wind = with_base_controller("horizontal", hover_spec().env_config, "dob")
     spec = replace(hover_spec(duration_s=1.0), config=config, base_wind_input=base_wind, base_state_inputs=("force", "ff"),
-                   privileged_inputs=("mean_wind", "turbulence", "true_error"), memory_frames=3, recurrent_hidden=16)
+                   preview_inputs=("ahead_2s",), privileged_inputs=("mean_wind", "turbulence", "true_error"),
+                   memory_frames=3, recurrent_hidden=16)
     cfg = PPOConfig(total_frames=2 * 4 * 16, num_envs=4, steps_per_env=16, epochs=1, minibatch=32, hidden=(32, 32),
                     eval_every_frames=0, checkpoint_every_frames=1)
     out = tmp_path / "run"
@@ -341,18 +385,19 @@ def test_a_policy_with_every_lever_trains_records_them_loads_the_same_actor_and_
     PPOTrainer(spec, cfg, out, eval_scenarios=sc, progress=False).train()
     manifest = json.loads((out / "policy.json").read_text())
     assert manifest["env_spec"]["base_state_inputs"] == list(spec.base_state_inputs)
+    assert manifest["env_spec"]["preview_inputs"] == ["ahead_2s_fwd", "ahead_2s_left", "ahead_2s_U"]
     assert manifest["env_spec"]["privileged_inputs"] == list(spec.privileged_inputs)
     assert manifest["env_spec"]["memory_frames"] == 3 and manifest["env_spec"]["recurrent_hidden"] == 16
-    assert manifest["observation_channels"] == list(OBSERVATION_CHANNELS + spec.base_state_inputs)
+    assert manifest["observation_channels"] == list(OBSERVATION_CHANNELS + spec.base_state_inputs + spec.preview_inputs)
     latest = torch.load(out / "checkpoints" / "latest.pt", weights_only=True)
     assert "privileged_vecnorm" in latest  # a resume needs the critic's normalisation ...
     saved = torch.load(out / "policy.pt", weights_only=True)
     assert "privileged_vecnorm" not in saved  # ... a policy never
-    assert saved["value"]["module.mlp.0.weight"].shape[-1] == 3 * (OBSERVATION_DIM + 6) + 9  # the critic read it
-    # the loaded actor is the saved one: a GRU of 16 units on (23 + 6) x 3 inputs
+    assert saved["value"]["module.mlp.0.weight"].shape[-1] == 3 * (OBSERVATION_DIM + 6 + 3) + 9  # the critic read it
+    # the loaded actor is the saved one: a GRU of 16 units on (23 + 6 + 3) x 3 inputs
     actor, payload = load_policy(out / "policy.pt")
     gru = next(m for m in actor.modules() if isinstance(m, GRUModule))
-    assert (gru.gru.input_size, gru.gru.hidden_size) == (3 * (OBSERVATION_DIM + 6), 16)
+    assert (gru.gru.input_size, gru.gru.hidden_size) == (3 * (OBSERVATION_DIM + 6 + 3), 16)
     assert actor.state_dict().keys() == saved["policy"].keys()
     assert all(torch.equal(actor.state_dict()[k], v) for k, v in saved["policy"].items())
     # the evaluation path: the env of the policy's flight settings has no privileged entry, and flies
@@ -489,6 +534,7 @@ def test_lever_settings_are_catalogue_names_or_named_recipe_flags():
     assert parse_lever("memory4", "horizontal") == ("memory4", ("--memory-frames", "4"))
     assert parse_lever("mem8=--memory-frames 8", "vertical") == ("mem8", ("--memory-frames", "8"))
     assert LEVERS["horizontal"]["residual"] == ()
+    assert RLEnvSpec(preview_inputs=LEVERS["vertical"]["preview"][1:]).preview_inputs == PREVIEW_CHANNELS
     with pytest.raises(ValueError, match=r"lever 'memory'; allowed: \[.*'memory4'.*\] or NAME=FLAGS"):
         parse_lever("memory", "horizontal")
     with pytest.raises(ValueError, match=r"NAME=FLAGS needs a NAME of letters, digits and _; got 'mem 8'"):
