@@ -122,7 +122,7 @@ def aten_calls_per_control_step(env, td, steps: int = 5) -> tuple[float, object]
     return len(top) / (steps * env.config.timing.hold_control_steps), td
 
 
-def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds: float, episode_s: float,
+def measure(n: int, compile_step: bool | str, atmosphere: str, sensors: bool, seconds: float, episode_s: float,
             workers: int, hold: int, threads: int, device: str) -> dict:
     cfg = make_config(atmosphere, sensors)
     cfg = replace(cfg, timing=replace(cfg.timing, hold_control_steps=hold))
@@ -174,10 +174,16 @@ def measure(n: int, compile_step: bool, atmosphere: str, sensors: bool, seconds:
     }
 
 
+# --compile's values -> QuadWindEnv(compile_step=...)
+COMPILE_STEP: dict[str, bool | str] = {"0": False, "1": True, "static": "static"}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", type=int, nargs="+", default=None, help="N (default: 1 64 1024 4096 16384; cuda: 65536)")
-    parser.add_argument("--compile", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--compile", nargs="+", default=["0", "1"], choices=list(COMPILE_STEP),
+                        help="0: eager; 1: compiled with the batch dimension symbolic (the env's default); static: "
+                             "compiled for this N alone (one compilation per batch size)")
     parser.add_argument("--atmosphere", nargs="+", default=["full", "mean"], choices=["mean", "full"])
     parser.add_argument("--sensors", type=int, default=1, choices=[0, 1])
     parser.add_argument("--seconds", type=float, default=5.0, help="timed seconds per loop")
@@ -201,7 +207,7 @@ def main() -> None:
         args.sizes = [65536] if cuda else [1, 64, 1024, 4096, 16384]
     if args.single:
         torch.set_num_threads(args.threads)
-        n, compiled, atmosphere = args.sizes[0], bool(args.compile[0]), args.atmosphere[0]
+        n, compiled, atmosphere = args.sizes[0], COMPILE_STEP[args.compile[0]], args.atmosphere[0]
         workers = args.workers[0]
         r = measure(n, compiled, atmosphere, bool(args.sensors), args.seconds, args.episode_s, workers, args.hold,
                     args.threads, args.device)
