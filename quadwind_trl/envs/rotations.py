@@ -7,7 +7,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .operands import operands
+from .operands import operands, tracing
 
 
 class _Tables(NamedTuple):
@@ -15,7 +15,14 @@ class _Tables(NamedTuple):
     :func:`euler_to_rotmat` evaluate their textbook expressions four or nine entries per op (a
     handful of eager ops, not dozens, and no more arithmetic than the expressions have), and the
     numbers :func:`quat_integrate` and :func:`body_z_vertical` combine, as tensors for the eager
-    step (:mod:`.operands`)."""
+    step (:mod:`.operands`).
+
+    Traced, the same functions write the expressions out entry by entry instead: inductor fuses
+    them into the step's elementwise kernels, where a table is one more kernel input read through
+    an index (an indirect load per entry, and a small reduction for ``vecdot``). Traced with the
+    tables, the compiled step at N = 4096 took 1.2-1.3x the CPU time it takes written out
+    (``bench/env_throughput.py --compile 1``; docs/benchmarks.md). Eager and traced forms agree to
+    the last bit or two (the same products, summed in another order)."""
 
     mul_index: Tensor  # [16]: quat_mul's matrix L(a) (a b = L(a) b), row-major, as components of a
     mul_sign: Tensor  # [16]: and their signs
@@ -87,6 +94,11 @@ def _tables(device: torch.device, dtype: torch.dtype) -> _Tables:
 
 def quat_mul(a: Tensor, b: Tensor) -> Tensor:
     """The Hamilton product (``w = aw bw - ax bx - ay by - az bz``, ...), as ``L(a) b``."""
+    if tracing():
+        aw, ax, ay, az = a.unbind(-1)
+        bw, bx, by, bz = b.unbind(-1)
+        return torch.stack((aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                            aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw), -1)
     t = _tables(a.device, a.dtype)
     left = (a.index_select(-1, t.mul_index) * t.mul_sign).unflatten(-1, (4, 4))
     return torch.linalg.vecdot(left, b.unsqueeze(-2))
@@ -95,6 +107,14 @@ def quat_mul(a: Tensor, b: Tensor) -> Tensor:
 def quat_to_rotmat(q: Tensor) -> Tensor:
     """``[..., 3, 3]`` matrix ``R`` with ``v_world = R @ v_body`` of a unit quaternion; its
     columns are the body axes."""
+    if tracing():  # the same two terms per entry as the tables', written out
+        w, x, y, z = q.unbind(-1)
+        ww = w * w
+        return torch.stack((
+            2 * (ww + x * x) - 1, 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 2 * (ww + y * y) - 1, 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 2 * (ww + z * z) - 1,
+        ), -1).unflatten(-1, (3, 3))  # fmt: skip
     t = _tables(q.device, q.dtype)
     products = q.index_select(-1, t.rotmat_left) * q.index_select(-1, t.rotmat_right)
     first, second = products.unflatten(-1, (2, 9)).unbind(-2)
@@ -130,6 +150,14 @@ def quat_from_euler(roll: Tensor, pitch: Tensor, yaw: Tensor) -> Tensor:
 def euler_to_rotmat(angles: Tensor) -> Tensor:
     """``[..., 3, 3]``: the rotation matrix of Z-Y-X Euler angles ``[..., 3]`` (roll, pitch, yaw,
     radians), ``quat_to_rotmat(quat_from_euler(roll, pitch, yaw))`` without the quaternion."""
+    if tracing():  # the tables' products, written out
+        cr, cp, cy = torch.cos(angles).unbind(-1)
+        sr, sp, sy = torch.sin(angles).unbind(-1)
+        return torch.stack((
+            cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr,
+            sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr,
+            -sp, cp * sr, cp * cr,
+        ), -1).unflatten(-1, (3, 3))  # fmt: skip
     t = _tables(angles.device, angles.dtype)
     factors = torch.cat((torch.cos(angles), torch.sin(angles), t.one.expand(*angles.shape[:-1], 1)), -1)
     products = factors.index_select(-1, t.euler_index).unflatten(-1, (2, 9, 3)).prod(-1)
@@ -208,6 +236,8 @@ def rotate_inverse(r: Tensor, v: Tensor) -> Tensor:
 def vee_antisymmetric(m: Tensor) -> Tensor:
     """``1/2 vee(m^T - m)`` (``vee`` the vector of a skew-symmetric matrix):
     ``(m_12 - m_21, m_20 - m_02, m_01 - m_10) / 2``."""
+    if tracing():
+        return 0.5 * torch.stack((m[..., 1, 2] - m[..., 2, 1], m[..., 2, 0] - m[..., 0, 2], m[..., 0, 1] - m[..., 1, 0]), -1)
     return torch.linalg.vecdot(m.flatten(-2).unsqueeze(-2), _tables(m.device, m.dtype).vee_map)
 
 
