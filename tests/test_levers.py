@@ -149,7 +149,7 @@ def test_an_old_policy_file_rebuilds_the_paper_actor_and_flies_as_before():
     payload = torch.load(AWARE, weights_only=True)
     assert "base_state_inputs" not in payload["env_spec"] and "memory_frames" not in payload["env_spec"]
     settings = policy_env_settings(payload["env_spec"], None)
-    assert settings["base_state_inputs"] == () and settings["memory_frames"] == 1
+    assert settings["base_state_inputs"] == () and settings["preview_inputs"] == () and settings["memory_frames"] == 1
     actor, loaded = load_policy(AWARE)
     assert actor.module[0].module[0][0].in_features == OBSERVATION_DIM
     state = actor.state_dict()

@@ -113,7 +113,7 @@ def test_policies_record_zero_inputs_and_older_ones_have_none(bundle):
     recorded = spec_to_dict(RLEnvSpec(zero_inputs=NO_TILT, ema_tau_s=2.0, estimate_every_s=0.5, base_wind_input="zero"))
     assert policy_env_settings(recorded, bundle) == {"ema_tau_s": 2.0, "estimate_every_s": 0.5, "zero_inputs": NO_TILT,
                                                      "base_wind_input": "zero", "base_state_inputs": (),
-                                                     "memory_frames": 1, "recurrent_hidden": 0}
+                                                     "preview_inputs": (), "memory_frames": 1, "recurrent_hidden": 0}
     older = {key: value for key, value in recorded.items() if key != "zero_inputs"}
     assert policy_env_settings(older, bundle)["zero_inputs"] == ()
     spec = load_checkpoint(AWARE, "policy")["env_spec"]  # the shipped policies predate the setting
