@@ -100,7 +100,26 @@ def _heading_vector(vec: torch.Tensor, yaw: torch.Tensor) -> dict[str, torch.Ten
     return {"fwd": fwd, "left": left, "U": vec[..., 2:3]}
 
 
-class PolicyObservation(Transform):
+class _StatelessEntry(Transform):
+    """A transform that writes ``out_key`` (``out_shape`` per row) from the entries of the same
+    step alone: a reset computes it as a step does, and so does a direct call."""
+
+    out_key: str
+    out_shape: tuple[int, ...]
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict_reset)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return self._call(tensordict)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        observation_spec[self.out_key] = Unbounded(shape=(*observation_spec.shape, *self.out_shape),
+                                                   device=observation_spec.device)
+        return observation_spec
+
+
+class PolicyObservation(_StatelessEntry):
     """Concatenates the 23 policy inputs (22 with the residual on the acceleration) into
     ``out_key`` (default ``"observation"``), and after them the base controller's state channels
     ``base_channels`` (names of :data:`~quadwind_trl.keys.BASE_STATE_CHANNELS`, read from the
@@ -137,6 +156,7 @@ class PolicyObservation(Transform):
             in_keys.append(REFERENCE_AHEAD_KEY)
         super().__init__(in_keys=in_keys, out_keys=[out_key])
         self.wind_key, self.out_key = wind_key, out_key
+        self.out_shape = (self.dim + len(self.base_channels) + len(self.preview_channels),)
         self.mass_kg = cfg.vehicle.mass_kg
         self.register_buffer("ki", torch.tensor(cfg.controller.ki_pos, dtype=torch.float32), persistent=False)
         # the kinematic block through the feature code itself (a stateless vertical-schema step;
@@ -209,19 +229,9 @@ class PolicyObservation(Transform):
             parts.update({f"ahead_{horizon:g}s_{c}": v for c, v in _heading_vector(ahead[:, k], yaw).items()})
         return torch.cat([parts[c] for c in self.preview_channels], -1)
 
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict)
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        width = self.dim + len(self.base_channels) + len(self.preview_channels)
-        observation_spec[self.out_key] = Unbounded(shape=(*observation_spec.shape, width), device=observation_spec.device)
-        return observation_spec
 
 
-class ReferenceAhead(Transform):
+class ReferenceAhead(_StatelessEntry):
     """Where the reference will be :data:`~quadwind_trl.keys.REFERENCE_AHEAD_S` seconds from now,
     from the vehicle's navigation position: ``ref_ahead`` ``[N, K, 3]`` (ENU, m), the input of a
     policy that plans (``PolicyObservation(preview_channels=...)`` reads it in the heading frame).
@@ -235,7 +245,7 @@ class ReferenceAhead(Transform):
         if not control_dt_s > 0:
             raise ValueError(f"ReferenceAhead(control_dt_s={control_dt_s!r}); allowed: > 0 s")
         super().__init__(in_keys=["step", "nav_pos"], out_keys=[out_key])
-        self.out_key = out_key
+        self.out_key, self.out_shape = out_key, (len(REFERENCE_AHEAD_S), 3)
         self.steps_ahead = tuple(round(h / control_dt_s) for h in REFERENCE_AHEAD_S)  # control steps, per horizon
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
@@ -246,19 +256,9 @@ class ReferenceAhead(Transform):
         td.set(self.out_key, ahead - td.get("nav_pos").unsqueeze(-2))
         return td
 
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict)
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        observation_spec[self.out_key] = Unbounded(shape=(*observation_spec.shape, len(REFERENCE_AHEAD_S), 3),
-                                                   device=observation_spec.device)
-        return observation_spec
 
 
-class PrivilegedObservation(Transform):
+class PrivilegedObservation(_StatelessEntry):
     """The simulator truth an asymmetric critic reads at training time: ``channels`` (names of
     :data:`~quadwind_trl.keys.PRIVILEGED_CHANNELS`) into ``out_key`` (default ``"privileged"``),
     horizontal parts in the heading frame of the measured yaw, as the observation's.
@@ -277,7 +277,7 @@ class PrivilegedObservation(Transform):
         in_keys = [("truth", "mean_wind"), ("truth", "wind"), ("truth", "pos"), ("truth", "vel"), "ref_pos", "ref_vel",
                    (MEAS_KEY, "attitude")]
         super().__init__(in_keys=in_keys, out_keys=[out_key])
-        self.out_key = out_key
+        self.out_key, self.out_shape = out_key, (len(self.channels),)
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
         td = next_tensordict
@@ -293,16 +293,6 @@ class PrivilegedObservation(Transform):
         td.set(self.out_key, torch.cat([parts[c] for c in self.channels], -1))
         return td
 
-    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict_reset)
-
-    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
-        return self._call(tensordict)
-
-    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        observation_spec[self.out_key] = Unbounded(shape=(*observation_spec.shape, len(self.channels)),
-                                                   device=observation_spec.device)
-        return observation_spec
 
 
 class ZeroInputs(Transform):
