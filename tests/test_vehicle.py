@@ -221,3 +221,27 @@ def test_rotor_model_refuses_a_rotor_that_would_stall_and_bounds_the_advance_rat
     at_limit = _ratio([0.5 * slow * AERO.radius, 0.0, 0.0], slow)
     beyond = _ratio([[3.0 * slow * AERO.radius, 0.0, 0.0]], slow)
     torch.testing.assert_close(beyond, at_limit, rtol=1e-6, atol=0.0)
+
+
+def test_the_rotations_written_out_for_the_compiled_step_are_the_tables_expressions(monkeypatch):
+    """Traced, quat_mul, quat_to_rotmat, euler_to_rotmat and vee_antisymmetric write their
+    expressions out instead of reading the eager index tables (inductor fuses the former); both
+    forms are the same products, so in float64 they agree to the last bit or two."""
+    from quadwind_trl.envs import rotations
+
+    gen = torch.Generator().manual_seed(0)
+    q = torch.randn(500, 4, generator=gen, dtype=torch.float64)
+    q = q / q.norm(dim=-1, keepdim=True)
+    p = torch.randn(500, 4, generator=gen, dtype=torch.float64)
+    angles = torch.randn(500, 3, generator=gen, dtype=torch.float64)
+    m = torch.randn(500, 3, 3, generator=gen, dtype=torch.float64)
+
+    def every_form():
+        return (rotations.quat_mul(q, p), rotations.quat_to_rotmat(q), rotations.euler_to_rotmat(angles),
+                rotations.vee_antisymmetric(m))
+
+    eager = every_form()
+    monkeypatch.setattr(rotations, "tracing", lambda: True)
+    traced = every_form()
+    for name, e, t in zip(("quat_mul", "quat_to_rotmat", "euler_to_rotmat", "vee_antisymmetric"), eager, traced):
+        torch.testing.assert_close(t, e, rtol=0, atol=1e-15, msg=name)
