@@ -535,11 +535,14 @@ def test_every_sensor_preset_builds_and_flies():
 def test_compiled_step_matches_eager_at_every_size():
     """The compiled step (the default: the batch dimension symbolic) flies as the eager one at
     two batch sizes, and the second size, a partial reset and a second env compile nothing more
-    (one graph for every N), with inductor's caches in the library's folder. Its first env is the
+    (one graph for every N), even after other code of the process made tensordict remember a class
+    it had not seen (a guard on that memo retraced the step), with inductor's caches in the
+    library's folder. Its first env is the
     one the horizontal replay record's compiled flights use (tests/test_replay.py: the shipped
     horizontal policy's env on the quick sweep's flights, 3 rows), so one compilation serves both:
     inductor caches the graph on disk, and this test, marked long, is collected first, before the
     replay test."""
+    from tensordict import is_tensorclass
     from torch._dynamo.utils import counters
     from torch._inductor.runtime.cache_dir_utils import cache_dir
 
@@ -551,6 +554,11 @@ def test_compiled_step_matches_eager_at_every_size():
     _assert_flies_as(_stepped(QuadWindEnv(cfg, batch_size=[3], compile_step=True), sc, 60),
                      _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60))
     compilations = counters["frames"]["ok"]
+
+    class Unseen:  # what TorchRL's collector or a transform does when it meets a type of its own
+        pass
+
+    assert not is_tensorclass(Unseen)
     _assert_flies_as(_with_partial_reset(QuadWindEnv(cfg, batch_size=[5], compile_step=True), 5),
                      _with_partial_reset(QuadWindEnv(cfg, batch_size=[5]), 5))
     assert counters["frames"]["ok"] == compilations

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import functools
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, NamedTuple
 
 import torch
@@ -123,7 +123,22 @@ def _compiled_function(dynamic: bool) -> Callable:
     use_compile_cache()
     cfg = torch._dynamo.config
     cfg.recompile_limit = max(cfg.recompile_limit, COMPILED_STEPS_PER_PROCESS)
-    return torch.compile(_flat_held_control_step, dynamic=None if dynamic else False)
+    return torch.compile(_flat_held_control_step, dynamic=None if dynamic else False,
+                         options={"guard_filter_fn": _without_tensorclass_memo})
+
+
+# tensordict caches "is this class a tensorclass" in a module-level dict that grows whenever any
+# code of the process asks about a new class (TorchRL's collector, a transform, the evaluation).
+# Dynamo guards on that dict's length wherever a traced TensorDict reads it, so its growth threw
+# the whole step away: a full retrace at a training run's second batch and the evaluation's first
+# two flights. A class's answer never changes (it is fixed when the class is made), so the guards
+# on the cache protect nothing the graph depends on.
+_TENSORCLASS_MEMO = "_TENSORCLASS_MEMO"
+
+
+def _without_tensorclass_memo(guards: Sequence) -> list[bool]:
+    """Dynamo's guard filter: every guard of the step kept except those on tensordict's memo."""
+    return [_TENSORCLASS_MEMO not in guard.name for guard in guards]
 
 
 def _distinct(leaves: tuple[Tensor, ...]) -> tuple[Tensor, ...]:
