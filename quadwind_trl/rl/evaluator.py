@@ -74,6 +74,20 @@ class EvaluationResult:
     pd_eval: dict
 
 
+def _step_once_aside(factory: EnvFactory, scenarios: TensorDictBase, seed: int) -> None:
+    """One step of the zero action on a throwaway copy of the eval env, on ``scenarios``: the
+    child's compiled step is traced (or read from inductor's cache, about ten seconds) while the
+    trainer collects its first batches, not at the first evaluation, which a run evaluated once
+    at its end waits for. The copy's simulator is its own, and the compiled step is the process's
+    (one for every env of the configuration): the eval env's flights are unchanged. Eagerly it
+    costs one step."""
+    aside = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
+    sim = aside.base_env
+    td = sim.reset(scenario=scenarios)
+    sim.step(td.update(sim.full_action_spec.zero()))
+    aside.close()
+
+
 def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed: int, jobs: mp.Queue, results: mp.Queue
            ) -> None:
     """The child: build the eval env and an actor once, then evaluate each job until ``None``."""
@@ -84,6 +98,7 @@ def _serve(factory: EnvFactory, scenarios: TensorDictBase, cfg: PPOConfig, seed:
             torch.set_num_threads(cfg.threads)
         env = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
         actor = build_actor_critic(cfg, **network_dims(factory.spec))[0].to(factory.spec.device)
+        _step_once_aside(factory, scenarios, seed)
         pd_eval = None
         while (job := jobs.get()) is not None:
             job = from_bytes(job)
