@@ -74,6 +74,7 @@ class EvaluationResult:
     pd_eval: dict
 
 
+@torch.no_grad()  # as the flights are flown (runner.fly): grad mode is part of what the step's graph is traced under
 def _step_once_aside(factory: EnvFactory, scenarios: TensorDictBase, seed: int) -> None:
     """One step of the zero action on a throwaway copy of the eval env, on ``scenarios``: the
     child's compiled step is traced (or read from inductor's cache, about ten seconds) while the
