@@ -13,6 +13,8 @@ through ``torch.compile``, one compiled function per process for every env:
   graph per configuration and batch size instead. The TensorDicts cross the compiled boundary as
   flat tuples of their leaves, rebuilt inside around the leaves' batch size: a TensorDict's
   ``batch_size`` is a Python constant to dynamo, which would pin ``N``;
+* dynamo's guards on tensordict's tensorclass memo are dropped (:func:`_without_tensorclass_memo`):
+  a graph traced once stays valid for the process, whatever classes its other code meets;
 * what is traced is the graph the step has always had: the eager step's shortcuts (numbers made
   tensors, fused ops) are taken only eagerly (:mod:`.operands`);
 * inductor's caches (the FX graph and AOTAutograd caches, on by default) keep the compiled code
