@@ -84,7 +84,7 @@ def _step_once_aside(factory: EnvFactory, scenarios: TensorDictBase, seed: int) 
     costs one step."""
     aside = factory(num_envs=scenarios.batch_size[0], seed=seed, desync_steps=0)
     sim = aside.base_env
-    td = sim.reset(scenario=scenarios)
+    td = sim.reset(scenario=scenarios.to(sim.device))  # where the flights put them (runner.fly)
     sim.step(td.update(sim.full_action_spec.zero()))
     aside.close()
 
