@@ -555,7 +555,7 @@ def test_compiled_step_matches_eager_at_every_size():
                      _stepped(QuadWindEnv(cfg, batch_size=[3]), sc, 60))
     compilations = counters["frames"]["ok"]
 
-    class Unseen:  # what TorchRL's collector or a transform does when it meets a type of its own
+    class Unseen:  # any code of the process asking tensordict about a class it has not seen
         pass
 
     assert not is_tensorclass(Unseen)

@@ -130,11 +130,11 @@ def _compiled_function(dynamic: bool) -> Callable:
 
 
 # tensordict caches "is this class a tensorclass" in a module-level dict that grows whenever any
-# code of the process asks about a new class (TorchRL's collector, a transform, the evaluation).
-# Dynamo guards on that dict's length wherever a traced TensorDict reads it, so its growth threw
-# the whole step away: a full retrace at a training run's second batch and the evaluation's first
-# two flights. A class's answer never changes (it is fixed when the class is made), so the guards
-# on the cache protect nothing the graph depends on.
+# code of the process asks about a class it has not seen. Dynamo guards on that dict's length
+# wherever a traced TensorDict reads it, so its growth threw the whole step away: a full retrace
+# at a training run's second batch, and at the evaluation process's first flight. A class's answer
+# never changes (it is fixed when the class is made), so the guards on the cache protect nothing
+# the graph depends on.
 _TENSORCLASS_MEMO = "_TENSORCLASS_MEMO"
 
 

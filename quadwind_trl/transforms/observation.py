@@ -230,7 +230,6 @@ class PolicyObservation(_StatelessEntry):
         return torch.cat([parts[c] for c in self.preview_channels], -1)
 
 
-
 class ReferenceAhead(_StatelessEntry):
     """Where the reference will be :data:`~quadwind_trl.keys.REFERENCE_AHEAD_S` seconds from now,
     from the vehicle's navigation position: ``ref_ahead`` ``[N, K, 3]`` (ENU, m), the input of a
@@ -255,7 +254,6 @@ class ReferenceAhead(_StatelessEntry):
         ahead = torch.stack([env.reference_at((steps + k)[:, 0]).pos for k in self.steps_ahead], -2)
         td.set(self.out_key, ahead - td.get("nav_pos").unsqueeze(-2))
         return td
-
 
 
 class PrivilegedObservation(_StatelessEntry):
@@ -292,7 +290,6 @@ class PrivilegedObservation(_StatelessEntry):
                 parts.update({f"{prefix}_{k}": v for k, v in _heading_vector(vec, yaw).items()})
         td.set(self.out_key, torch.cat([parts[c] for c in self.channels], -1))
         return td
-
 
 
 class ZeroInputs(Transform):
